@@ -1,0 +1,85 @@
+"""The ``evseg`` console script: one entry point, one module per subcommand.
+
+Each subcommand lives in ``evseg/commands/<name>.py`` and defines ``HELP`` (one line),
+``add_arguments(parser)`` and ``run(args) -> int``. Heavy imports (torch, onnxruntime, cv2)
+stay inside ``run`` so that ``evseg --help`` is instant.
+
+User errors (:class:`evseg.errors.EvsegError`) print one line and exit with status 2;
+``--debug`` prints the traceback instead. Ctrl-C exits with status 130.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import pkgutil
+import sys
+import traceback
+
+from evseg.errors import EvsegError
+
+# Order in which subcommands are listed in --help: the pipeline's order. Modules found in
+# evseg/commands but not listed here follow alphabetically.
+ORDER = ["demo", "simulate", "info", "convert", "flow", "segment", "train", "export", "eval", "bench"]
+
+
+def _command_modules() -> list[str]:
+    import evseg.commands as pkg
+
+    found = sorted(m.name for m in pkgutil.iter_modules(pkg.__path__) if not m.name.startswith("_"))
+    return [n for n in ORDER if n in found] + [n for n in found if n not in ORDER]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="evseg",
+        description="Real-time motion segmentation with event cameras (learned normal flow + graph cuts).",
+    )
+    parser.add_argument("--debug", action="store_true", help="show full tracebacks on errors")
+    from evseg import __version__
+
+    parser.add_argument("--version", action="version", version=f"evseg {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in _command_modules():
+        mod = importlib.import_module(f"evseg.commands.{name}")
+        p = sub.add_parser(
+            name,
+            help=mod.HELP,
+            description=(mod.__doc__ or mod.HELP).strip(),
+            formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        )
+        p.add_argument("--debug", action="store_true", help="show full tracebacks on errors")
+        mod.add_arguments(p)
+        p.set_defaults(_run=mod.run)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help()
+        return 2
+    try:
+        return int(args._run(args) or 0)
+    except EvsegError as exc:
+        if args.debug:
+            traceback.print_exc()
+        print(f"evseg {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"evseg {args.command}: interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:  # a bug in evseg: say so, keep the traceback one flag away
+        if args.debug:
+            raise
+        print(
+            f"evseg {args.command}: internal error: {type(exc).__name__}: {exc} "
+            "(rerun with --debug for the traceback and please report it)",
+            file=sys.stderr,
+        )
+        return 1
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

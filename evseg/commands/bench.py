@@ -1,0 +1,77 @@
+"""Benchmarks: time a pipeline stage and write a markdown table.
+
+Each target is a function ``benchmark(repeats: int, quick: bool) -> list[dict]`` in the
+stage's own package; every row names its input size (events, nodes, targets) and reports
+medians over ``repeats`` runs. This command only formats and writes the table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+import platform
+import sys
+from pathlib import Path
+
+from evseg.errors import EvsegError
+
+HELP = "time a pipeline stage (median over repeated runs) and write a markdown table"
+
+# target -> "module:function"; each function returns a list of row dicts (same keys).
+TARGETS = {
+    "sim": "evseg.simulator.bench:benchmark",
+    "flow": "evseg.veckm_flow.bench:benchmark",
+    "seg": "evseg.segmentation.bench:benchmark",
+    "pipeline": "evseg.pipeline_bench:benchmark",
+}
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("target", choices=sorted(TARGETS), help="what to time")
+    p.add_argument("--repeats", type=int, default=5, help="timed runs per row (median reported)")
+    p.add_argument("--quick", action="store_true", help="fewer and smaller inputs (smoke run)")
+    p.add_argument("--out", type=Path, default=None, help="write the markdown table here too")
+
+
+def machine_line() -> str:
+    threads = os.environ.get("OMP_NUM_THREADS", "default")
+    return (
+        f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
+        f"Python {platform.python_version()}, OMP_NUM_THREADS={threads}"
+    )
+
+
+def markdown_table(rows: list[dict]) -> str:
+    """Format rows of equal keys as a markdown table (floats with 3 significant digits)."""
+    if not rows:
+        return "(no rows)\n"
+    keys = list(rows[0])
+
+    def fmt(v) -> str:
+        if isinstance(v, float):
+            return f"{v:.3g}" if abs(v) < 1000 else f"{v:,.0f}"
+        return str(v)
+
+    lines = ["| " + " | ".join(keys) + " |", "|" + "---|" * len(keys)]
+    lines += ["| " + " | ".join(fmt(r.get(k, "")) for k in keys) + " |" for r in rows]
+    return "\n".join(lines) + "\n"
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.repeats < 1:
+        raise EvsegError(f"--repeats must be at least 1, got {args.repeats}")
+    module, func = TARGETS[args.target].split(":")
+    try:
+        fn = getattr(importlib.import_module(module), func)
+    except ModuleNotFoundError as exc:
+        raise EvsegError(f"benchmark '{args.target}' is not available in this build ({exc})") from None
+    rows = fn(repeats=args.repeats, quick=args.quick)
+    text = f"{machine_line()}\n\n{markdown_table(rows)}"
+    sys.stdout.write(text)
+    if args.out is not None:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        tmp = args.out.with_suffix(args.out.suffix + ".tmp")
+        tmp.write_text(text)
+        tmp.replace(args.out)
+    return 0

@@ -1,0 +1,181 @@
+"""The one in-memory form of event data used everywhere in evseg.
+
+Events are a numpy structured array of dtype :data:`EVENT_DTYPE`:
+
+========  =========  ===========================================================
+field     dtype      meaning
+========  =========  ===========================================================
+``x``     uint16     pixel column, 0 = left
+``y``     uint16     pixel row, 0 = **top**
+``t``     int64      timestamp in microseconds (relative to ``t_offset_us``)
+``p``     int8       polarity, **+1** (ON, brightness up) or **-1** (OFF)
+========  =========  ===========================================================
+
+Polarity is signed (+1/-1) rather than 0/1 so that it can be summed and multiplied
+directly (event images, contrast sums); readers convert 0/1 and boolean ``on`` fields.
+
+An :class:`EventStream` bundles the array with the sensor size, the time offset and an
+optional camera calibration. Functions in evseg never mutate a caller's array; where they
+need a changed copy they make one.
+
+Example
+-------
+>>> import numpy as np
+>>> from evseg.events import make_events, EventStream
+>>> ev = make_events(x=[1, 2], y=[0, 0], t=[10, 20], p=[1, -1])
+>>> stream = EventStream(ev, sensor_size=(4, 3))
+>>> stream.duration_us
+10
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Iterator
+
+import numpy as np
+
+from evseg.errors import EventDataError
+
+if TYPE_CHECKING:  # pragma: no cover
+    from evseg.calibration import Calibration
+
+EVENT_DTYPE = np.dtype([("x", "<u2"), ("y", "<u2"), ("t", "<i8"), ("p", "i1")])
+"""dtype of every event array in evseg (see module docstring for units)."""
+
+
+
+
+def make_events(x, y, t, p) -> np.ndarray:
+    """Build an :data:`EVENT_DTYPE` array from four equal-length sequences.
+
+    ``p`` may be +1/-1, 0/1 or boolean; 0 and False become -1.
+
+    >>> make_events([0], [1], [5], [0])["p"].tolist()
+    [-1]
+    """
+    x, y, t, p = (np.asarray(a) for a in (x, y, t, p))
+    n = len(x)
+    for name, a in (("y", y), ("t", t), ("p", p)):
+        if len(a) != n:
+            raise EventDataError(f"make_events: field '{name}' has {len(a)} values, 'x' has {n}")
+    ev = np.empty(n, dtype=EVENT_DTYPE)
+    ev["x"] = x
+    ev["y"] = y
+    ev["t"] = t
+    ev["p"] = polarity_to_signed(p)
+    return ev
+
+
+def polarity_to_signed(p: np.ndarray) -> np.ndarray:
+    """Map polarity in any common encoding (bool, 0/1, -1/+1) to int8 +1/-1."""
+    p = np.asarray(p)
+    if p.dtype == bool:
+        return np.where(p, 1, -1).astype(np.int8)
+    return np.where(p > 0, 1, -1).astype(np.int8)
+
+
+def empty_events() -> np.ndarray:
+    """A zero-length event array."""
+    return np.empty(0, dtype=EVENT_DTYPE)
+
+
+def validate_events(
+    events: np.ndarray,
+    sensor_size: tuple[int, int] | None = None,
+    source: str = "events",
+    check_sorted: bool = True,
+) -> None:
+    """Raise :class:`EventDataError` if ``events`` breaks the event model.
+
+    Checks the dtype, non-decreasing timestamps and (when ``sensor_size = (width, height)`` is
+    given) that every coordinate lies on the sensor. The message names ``source``, the field
+    and the index of the first bad event.
+    """
+    if not isinstance(events, np.ndarray) or events.dtype != EVENT_DTYPE:
+        got = getattr(events, "dtype", type(events).__name__)
+        raise EventDataError(f"{source}: expected an array of dtype {EVENT_DTYPE}, got {got}")
+    if len(events) == 0:
+        return
+    if check_sorted:
+        bad = np.flatnonzero(np.diff(events["t"]) < 0)
+        if len(bad):
+            i = int(bad[0]) + 1
+            raise EventDataError(
+                f"{source}: field 't' is not sorted: event {i} has t={int(events['t'][i])} us "
+                f"< t={int(events['t'][i - 1])} us of event {i - 1} "
+                f"({len(bad)} decreasing steps in total; sort the events first)"
+            )
+    if sensor_size is not None:
+        width, height = sensor_size
+        for name, limit in (("x", width), ("y", height)):
+            bad = np.flatnonzero(events[name] >= limit)
+            if len(bad):
+                i = int(bad[0])
+                raise EventDataError(
+                    f"{source}: field '{name}' = {int(events[name][i])} at event {i} is outside "
+                    f"the sensor ({width}x{height}; {len(bad)} such events)"
+                )
+
+
+@dataclass(frozen=True)
+class EventStream:
+    """Events of one recording (or one chunk of it) with their sensor and time reference.
+
+    Attributes:
+        events: array of :data:`EVENT_DTYPE`, sorted by ``t``.
+        sensor_size: ``(width, height)`` in pixels.
+        t_offset_us: absolute time of ``t == 0`` in microseconds (e.g. a ROS epoch time),
+            so that ``t`` itself stays small.
+        calibration: optional camera intrinsics and distortion.
+    """
+
+    events: np.ndarray
+    sensor_size: tuple[int, int]
+    t_offset_us: int = 0
+    calibration: "Calibration | None" = field(default=None, repr=False)
+
+    def __post_init__(self) -> None:
+        w, h = self.sensor_size
+        if int(w) <= 0 or int(h) <= 0:
+            raise EventDataError(f"sensor_size must be positive (width, height), got {self.sensor_size}")
+        object.__setattr__(self, "sensor_size", (int(w), int(h)))
+
+    def __len__(self) -> int:
+        return len(self.events)
+
+    @property
+    def width(self) -> int:
+        return self.sensor_size[0]
+
+    @property
+    def height(self) -> int:
+        return self.sensor_size[1]
+
+    @property
+    def duration_us(self) -> int:
+        """Time from first to last event in microseconds (0 for fewer than 2 events)."""
+        if len(self.events) < 2:
+            return 0
+        return int(self.events["t"][-1] - self.events["t"][0])
+
+    @property
+    def rate_ev_s(self) -> float:
+        """Mean event rate in events per second (0 when undefined)."""
+        d = self.duration_us
+        return len(self.events) / (d * 1e-6) if d > 0 else 0.0
+
+    def validate(self, source: str = "events") -> "EventStream":
+        validate_events(self.events, self.sensor_size, source=source)
+        return self
+
+    def time_windows(self, window_us: int, stride_us: int | None = None) -> Iterator["EventStream"]:
+        """Yield consecutive windows of fixed duration as views (no copy of the events)."""
+        from evseg.windows import time_window_slices
+
+        for sl in time_window_slices(self.events["t"], window_us, stride_us):
+            yield self.with_events(self.events[sl])
+
+    def with_events(self, events: np.ndarray) -> "EventStream":
+        """Same sensor, offset and calibration, other events."""
+        return EventStream(events, self.sensor_size, self.t_offset_us, self.calibration)

@@ -1,0 +1,140 @@
+"""Time windows over event arrays: by fixed duration or fixed event count.
+
+All slicing is index based (``np.searchsorted`` on the sorted timestamps), so a window of an
+in-memory recording is a view, never a copy. :func:`stream_time_windows` does the same over a
+chunked reader so that a recording larger than memory is processed window by window.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Iterable, Iterator
+
+import numpy as np
+
+from evseg.events import EVENT_DTYPE
+
+
+@dataclass(frozen=True)
+class Window:
+    """One time window: events with ``t0_us <= t < t1_us``.
+
+    Attributes:
+        index: running window number, from 0.
+        t0_us, t1_us: window bounds in microseconds (same time base as the events).
+        events: array of :data:`~evseg.events.EVENT_DTYPE` (a view where possible).
+        first_event: position of ``events[0]`` in the whole recording, so that per-event
+            results can be written back in input order.
+    """
+
+    index: int
+    t0_us: int
+    t1_us: int
+    events: np.ndarray
+    first_event: int
+
+
+def _check_positive(name: str, value: int) -> int:
+    if int(value) != value or value <= 0:
+        raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    return int(value)
+
+
+def time_window_bounds(
+    t_first_us: int, t_last_us: int, window_us: int, stride_us: int | None = None
+) -> np.ndarray:
+    """Start times (us) of windows of ``window_us`` every ``stride_us`` covering the span.
+
+    The first window starts at ``t_first_us``; the last one is the first that reaches past
+    ``t_last_us``. ``stride_us`` defaults to ``window_us`` (back-to-back windows).
+
+    >>> time_window_bounds(0, 25, 10).tolist()
+    [0, 10, 20]
+    """
+    window_us = _check_positive("window_us", window_us)
+    stride_us = _check_positive("stride_us", stride_us if stride_us is not None else window_us)
+    n = max(1, int((t_last_us - t_first_us) // stride_us) + 1)
+    return t_first_us + stride_us * np.arange(n, dtype=np.int64)
+
+
+def time_window_slices(
+    t_us: np.ndarray, window_us: int, stride_us: int | None = None
+) -> list[slice]:
+    """Slices of a sorted timestamp array into windows ``[t0, t0 + window_us)``.
+
+    >>> t = np.array([0, 3, 9, 10, 25])
+    >>> [(s.start, s.stop) for s in time_window_slices(t, 10)]
+    [(0, 3), (3, 4), (4, 5)]
+    """
+    if len(t_us) == 0:
+        return []
+    starts = time_window_bounds(int(t_us[0]), int(t_us[-1]), window_us, stride_us)
+    i0 = np.searchsorted(t_us, starts, side="left")
+    i1 = np.searchsorted(t_us, starts + window_us, side="left")
+    return [slice(int(a), int(b)) for a, b in zip(i0, i1)]
+
+
+def count_window_slices(n_events: int, count: int, stride: int | None = None) -> list[slice]:
+    """Slices of ``count`` consecutive events every ``stride`` events (last may be shorter).
+
+    >>> [(s.start, s.stop) for s in count_window_slices(5, 2)]
+    [(0, 2), (2, 4), (4, 5)]
+    """
+    count = _check_positive("count", count)
+    stride = _check_positive("stride", stride if stride is not None else count)
+    return [slice(i, min(i + count, n_events)) for i in range(0, n_events, stride)]
+
+
+def stream_time_windows(
+    chunks: Iterable[np.ndarray],
+    window_us: int,
+    stride_us: int | None = None,
+    t_start_us: int | None = None,
+) -> Iterator[Window]:
+    """Cut a stream of sorted event chunks into fixed-duration windows.
+
+    Memory stays bounded by one window plus one chunk: events older than the next window
+    start are dropped as soon as no later window can contain them. Empty windows (gaps in the
+    recording) are yielded too, with zero events, so window indices map to fixed times.
+
+    Args:
+        chunks: iterable of :data:`EVENT_DTYPE` arrays, sorted and contiguous in time.
+        window_us: window duration in microseconds.
+        stride_us: time between window starts (default ``window_us``); may be shorter
+            (overlapping windows) or longer (gaps) than the window.
+        t_start_us: start of the first window (default: time of the first event).
+    """
+    window_us = _check_positive("window_us", window_us)
+    stride_us = _check_positive("stride_us", stride_us if stride_us is not None else window_us)
+    buf = np.empty(0, dtype=EVENT_DTYPE)
+    buf_first = 0  # index in the recording of buf[0]
+    seen = 0  # events received so far
+    t0 = t_start_us
+    index = 0
+    for chunk in chunks:
+        if len(chunk) == 0:
+            continue
+        if t0 is None:
+            t0 = int(chunk["t"][0])
+        buf = np.concatenate([buf, chunk]) if len(buf) else chunk
+        seen += len(chunk)
+        t_last = int(buf["t"][-1])
+        # A window is complete once an event at or after its end has arrived.
+        while t0 + window_us <= t_last:
+            yield _cut(buf, buf_first, index, t0, window_us)
+            index += 1
+            t0 += stride_us
+            drop = int(np.searchsorted(buf["t"], t0, side="left"))
+            buf, buf_first = buf[drop:], buf_first + drop
+    if t0 is not None and len(buf):
+        # Flush: windows that still hold events, including the partial last one.
+        while t0 <= int(buf["t"][-1]):
+            yield _cut(buf, buf_first, index, t0, window_us)
+            index += 1
+            t0 += stride_us
+
+
+def _cut(buf: np.ndarray, buf_first: int, index: int, t0: int, window_us: int) -> Window:
+    i0 = int(np.searchsorted(buf["t"], t0, side="left"))
+    i1 = int(np.searchsorted(buf["t"], t0 + window_us, side="left"))
+    return Window(index, t0, t0 + window_us, buf[i0:i1], buf_first + i0)

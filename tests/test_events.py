@@ -1,0 +1,33 @@
+import numpy as np
+import pytest
+
+from evseg.errors import EventDataError
+from evseg.events import EVENT_DTYPE, EventStream, make_events, validate_events
+
+
+def test_make_events_converts_polarity_encodings():
+    ev = make_events([0, 1, 2, 3], [0, 0, 0, 0], [0, 1, 2, 3], [0, 1, True, -1])
+    assert ev.dtype == EVENT_DTYPE
+    assert ev["p"].tolist() == [-1, 1, 1, -1]
+
+
+def test_validate_names_field_and_index_of_unsorted_time():
+    ev = make_events([0, 0, 0], [0, 0, 0], [5, 7, 6], [1, 1, 1])
+    with pytest.raises(EventDataError, match=r"rec.npz: field 't' is not sorted: event 2"):
+        validate_events(ev, source="rec.npz")
+
+
+def test_validate_names_coordinate_outside_sensor():
+    ev = make_events([0, 9], [0, 0], [0, 1], [1, 1])
+    with pytest.raises(EventDataError, match=r"field 'x' = 9 at event 1 is outside the sensor \(8x4"):
+        validate_events(ev, sensor_size=(8, 4))
+
+
+def test_stream_windows_are_views_and_cover_all_events():
+    t = np.arange(0, 100_000, 7)
+    ev = make_events(np.zeros_like(t), np.zeros_like(t), t, np.ones_like(t))
+    stream = EventStream(ev, sensor_size=(2, 2))
+    wins = list(stream.time_windows(10_000))
+    assert sum(len(w) for w in wins) == len(ev)
+    assert all(np.shares_memory(w.events, ev) for w in wins if len(w))
+    assert stream.duration_us == int(t[-1])

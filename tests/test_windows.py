@@ -1,0 +1,49 @@
+import numpy as np
+import pytest
+
+from evseg.events import make_events
+from evseg.windows import count_window_slices, stream_time_windows, time_window_slices
+
+
+def _events(t):
+    t = np.asarray(t)
+    return make_events(np.zeros_like(t), np.zeros_like(t), t, np.ones_like(t))
+
+
+def test_time_window_slices_half_open_bounds():
+    t = np.array([0, 3, 9, 10, 19, 20, 35])
+    sl = time_window_slices(t, 10)
+    assert [(s.start, s.stop) for s in sl] == [(0, 3), (3, 5), (5, 6), (6, 7)]
+
+
+def test_overlapping_windows_with_stride():
+    t = np.arange(0, 30)
+    sl = time_window_slices(t, 10, stride_us=5)
+    assert [(s.start, s.stop) for s in sl][:3] == [(0, 10), (5, 15), (10, 20)]
+
+
+def test_count_windows():
+    assert [(s.start, s.stop) for s in count_window_slices(7, 3)] == [(0, 3), (3, 6), (6, 7)]
+    with pytest.raises(ValueError, match="count must be a positive integer"):
+        count_window_slices(7, 0)
+
+
+@pytest.mark.parametrize("chunk", [1, 3, 50, 1000])
+def test_streamed_windows_equal_in_memory_windows(chunk):
+    rng = np.random.default_rng(0)
+    t = np.sort(rng.integers(0, 200_000, 500))
+    ev = _events(t)
+    chunks = [ev[i : i + chunk] for i in range(0, len(ev), chunk)]
+    streamed = list(stream_time_windows(chunks, 10_000, 7_000))
+    ref = time_window_slices(t, 10_000, 7_000)
+    assert len(streamed) == len(ref)
+    for w, s in zip(streamed, ref):
+        assert w.first_event == s.start
+        np.testing.assert_array_equal(w.events, ev[s])
+
+
+def test_streamed_windows_keep_gaps_as_empty_windows():
+    ev = _events([0, 1, 50_000])
+    wins = list(stream_time_windows([ev], 10_000))
+    assert [len(w.events) for w in wins] == [2, 0, 0, 0, 0, 1]
+    assert [w.t0_us for w in wins] == [0, 10_000, 20_000, 30_000, 40_000, 50_000]
