@@ -1,0 +1,99 @@
+import numpy as np
+import pytest
+
+from evseg.metrics import (
+    angular_error_deg,
+    box_to_mask,
+    convex_hull_mask,
+    detection_success,
+    event_iou,
+    flow_errors,
+    mask_iou,
+    mask_to_box,
+    norm_error,
+    score_window,
+    sign_correct_rate,
+    summarize,
+    warp_sharpness,
+)
+
+SHAPE = (40, 40)
+
+
+def test_box_mask_roundtrip_inclusive():
+    m = box_to_mask((2, 3, 5, 7), SHAPE)
+    assert m.sum() == 4 * 5  # inclusive: columns 2..5, rows 3..7
+    assert mask_to_box(m) == (2, 3, 5, 7)
+    assert mask_to_box(np.zeros(SHAPE, bool)) is None
+
+
+def test_mask_iou_hand_computed():
+    a = box_to_mask((0, 0, 9, 9), SHAPE)  # 100 px
+    b = box_to_mask((5, 0, 14, 9), SHAPE)  # 100 px, overlap 50
+    assert mask_iou(a, b) == pytest.approx(50 / 150)
+
+
+def test_detection_criterion_both_conditions():
+    g = box_to_mask((0, 0, 9, 9), SHAPE)  # 100 px
+    # IoU = 81/100 > 0.5 and all of D inside G.
+    assert detection_success(box_to_mask((0, 0, 8, 8), SHAPE), g)
+    # D = 10x12 box overlapping G in 100 px, 20 px outside: IoU = 100/120 > .5, 100 > 20.
+    assert detection_success(box_to_mask((0, 0, 9, 11), SHAPE), g)
+    # IoU exactly 0.5 fails (strict): D of 200 px containing G.
+    assert not detection_success(box_to_mask((0, 0, 19, 9), SHAPE), g)
+    # Large overlap fraction but IoU < 0.5: D tiny inside G.
+    assert not detection_success(box_to_mask((0, 0, 2, 2), SHAPE), g)
+
+
+def test_score_window_matches_and_counts_false_objects():
+    g1 = box_to_mask((0, 0, 9, 9), SHAPE)
+    g2 = box_to_mask((20, 20, 29, 29), SHAPE)
+    d_good = box_to_mask((20, 20, 28, 29), SHAPE)  # matches g2, IoU 0.9
+    d_false = box_to_mask((0, 30, 5, 35), SHAPE)  # overlaps nothing
+    s = score_window([d_false, d_good], [g1, g2])
+    assert s.n_truth == 2 and s.n_detected == 2 and s.n_detected_ok == 1 and s.n_false == 1
+    assert s.ious == pytest.approx((0.0, 0.9))
+    summary = summarize([s, score_window([], [])])
+    assert summary.detection_rate == pytest.approx(0.5)
+    assert summary.mean_iou == pytest.approx(0.45)
+    assert summary.count_correct_rate == pytest.approx(1.0)  # 2 == 2 and 0 == 0
+    assert summary.false_object_rate == pytest.approx(0.5)
+
+
+def test_convex_hull_mask_of_square_corners():
+    m = convex_hull_mask(np.array([2, 8, 8, 2]), np.array([2, 2, 8, 8]), SHAPE)
+    assert mask_to_box(m) == (2, 2, 8, 8) and m.sum() == 49
+
+
+def test_event_iou_ignores_noise():
+    truth = np.array([0, 1, 1, -1, 0])
+    pred = np.array([0, 1, 0, 1, 2])
+    # IMO events: pred {1, 4} (3 ignored), truth {1, 2} -> inter 1, union 3.
+    assert event_iou(pred, truth) == pytest.approx(1 / 3)
+
+
+def test_flow_metrics_hand_computed():
+    assert angular_error_deg(np.array([[1.0, 1.0]]), np.array([[1.0, 0.0]]))[0] == pytest.approx(45)
+    assert angular_error_deg(np.array([[-1.0, 0.0]]), np.array([[1.0, 0.0]]))[0] == pytest.approx(180)
+    u = np.array([[2.0, 0.0]])
+    # (1, 1) is on the circle of diameter u=(2,0): |p| = sqrt2, p.u/|p| = 2/sqrt2 = sqrt2.
+    assert norm_error(np.array([[1.0, 1.0]]), u)[0] == pytest.approx(0, abs=1e-12)
+    assert sign_correct_rate(np.array([[1.0, 5.0], [-1.0, 0.0]]), np.array([[1.0, 0.0], [1.0, 0.0]])) == 0.5
+    e = flow_errors(np.array([[1.0, 0], [0, 1], [np.nan, 0]]), np.array([[2.0, 0], [1, 0], [1, 0]]))
+    assert e.n == 2 and e.median_angular_error_deg == pytest.approx(45)
+    assert e.median_relative_magnitude_error == pytest.approx(0.25)  # errors 0.5 and 0
+
+
+def test_warp_sharpness_rewards_true_flow():
+    # A vertical line of events moving right at 1000 px/s over 20 ms: 20 px of smear.
+    rng = np.random.default_rng(0)
+    n = 4000
+    t = np.sort(rng.uniform(0, 20_000, n))
+    x = 5 + 1000 * t * 1e-6
+    y = rng.uniform(5, 35, n)
+    true = np.tile([1000.0, 0.0], (n, 1))
+    good = warp_sharpness(x, y, t, true, SHAPE)
+    zero = warp_sharpness(x, y, t, np.zeros((n, 2)), SHAPE)
+    wrong = warp_sharpness(x, y, t, -true, SHAPE)
+    assert zero == pytest.approx(1.0)
+    assert good > 5 and wrong < 1
