@@ -1,0 +1,200 @@
+"""Segmentation results on disk: the stable ``result.npz`` schema, written atomically.
+
+Schema (all arrays; documented in the README):
+
+==================  ==============  =====================================================
+key                 dtype, shape    meaning
+==================  ==============  =====================================================
+``label``           int16 (N,)      one per input event in input order: -1 unassigned,
+                                    0 background, k >= 1 object id (stable across windows)
+``window_t0_us``    int64 (W,)      window start (us, time base of the recording)
+``window_t1_us``    int64 (W,)      window end (exclusive)
+``boxes``           int64 (B, 6)    rows ``(window index, object id, x0, y0, x1, y1)``,
+                                    inclusive pixel bounds
+``masks``           uint8 (B, P)    optional: per ``boxes`` row the object's dense mask,
+                                    ``np.packbits`` of the (height, width) bool mask
+``sensor_size``     int64 (2,)      (width, height)
+``partial``         bool ()         True when the run stopped early (error, Ctrl-C): only
+                                    events up to ``n_events_processed`` carry labels
+``n_events_processed`` int64 ()     events covered by processed windows
+``config``          str ()          the effective configuration, as YAML
+==================  ==============  =====================================================
+
+The writer streams ``label`` to a temporary file as windows arrive, so memory stays bounded
+however long the recording; :meth:`ResultWriter.close` assembles the npz next to the target
+and renames it into place, so a reader never sees a half-written file.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from evseg.errors import FormatError
+
+LABEL_DTYPE = np.dtype("<i2")
+UNASSIGNED = -1
+
+
+@dataclass
+class SegmentationOutput:
+    """A ``result.npz`` loaded back (see module docstring for the fields)."""
+
+    label: np.ndarray
+    window_t0_us: np.ndarray
+    window_t1_us: np.ndarray
+    boxes: np.ndarray
+    sensor_size: tuple[int, int]
+    partial: bool
+    n_events_processed: int
+    config: str
+    masks: np.ndarray | None = None
+
+    def mask(self, row: int) -> np.ndarray:
+        """Dense (height, width) bool mask of ``boxes[row]``."""
+        if self.masks is None:
+            raise FormatError("this result was written without masks (use --masks)")
+        w, h = self.sensor_size
+        return np.unpackbits(self.masks[row], count=w * h).astype(bool).reshape(h, w)
+
+
+class ResultWriter:
+    """Stream per-window labels and boxes into ``result.npz`` (atomic, bounded memory).
+
+    Labels must arrive in input order: :meth:`add_labels` appends the labels of the next
+    events. Events never covered by a window are written as -1 by :meth:`close`.
+    """
+
+    def __init__(self, path: str | Path, n_events: int, sensor_size: tuple[int, int], config_yaml: str = "",
+                 with_masks: bool = False):
+        self.path = Path(path)
+        self.n_events = int(n_events)
+        self.sensor_size = (int(sensor_size[0]), int(sensor_size[1]))
+        self.config_yaml = config_yaml
+        self.with_masks = with_masks
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        fd, name = tempfile.mkstemp(prefix=".labels-", suffix=".bin", dir=self.path.parent)
+        self._label_file = os.fdopen(fd, "wb")
+        self._label_path = Path(name)
+        self.n_written = 0
+        self._t0: list[int] = []
+        self._t1: list[int] = []
+        self._boxes: list[tuple[int, ...]] = []
+        self._masks: list[np.ndarray] = []
+        self._closed = False
+
+    def add_labels(self, labels: np.ndarray) -> None:
+        """Append labels for the next ``len(labels)`` events of the input."""
+        labels = np.asarray(labels, dtype=LABEL_DTYPE)
+        if self.n_written + len(labels) > self.n_events:
+            raise ValueError(f"more labels ({self.n_written + len(labels)}) than events ({self.n_events})")
+        self._label_file.write(labels.tobytes())
+        self.n_written += len(labels)
+
+    def add_window(self, t0_us: int, t1_us: int, boxes: dict[int, tuple[int, int, int, int]],
+                   masks: dict[int, np.ndarray] | None = None) -> None:
+        """Record one window's time span and its objects' boxes (and masks)."""
+        w = len(self._t0)
+        self._t0.append(int(t0_us))
+        self._t1.append(int(t1_us))
+        for oid in sorted(boxes):
+            self._boxes.append((w, int(oid), *(int(v) for v in boxes[oid])))
+            if self.with_masks:
+                if masks is None or oid not in masks:
+                    raise ValueError(f"window {w}: no mask for object {oid}")
+                self._masks.append(np.packbits(np.asarray(masks[oid], dtype=bool).ravel()))
+
+    def close(self, partial: bool = False) -> Path:
+        """Write the npz atomically; remaining events get -1. Returns the path."""
+        if self._closed:
+            return self.path
+        self._closed = True
+        n_done = self.n_written
+        fill = np.full(1 << 20, UNASSIGNED, dtype=LABEL_DTYPE)
+        remaining = self.n_events - self.n_written
+        while remaining > 0:
+            k = min(remaining, len(fill))
+            self._label_file.write(fill[:k].tobytes())
+            remaining -= k
+        self._label_file.close()
+        fd, tmp_name = tempfile.mkstemp(prefix=".result-", suffix=".npz", dir=self.path.parent)
+        os.close(fd)
+        tmp = Path(tmp_name)
+        try:
+            with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_STORED, allowZip64=True) as zf:
+                _write_npy_from_file(zf, "label", self._label_path, LABEL_DTYPE, (self.n_events,))
+                arrays = {
+                    "window_t0_us": np.asarray(self._t0, dtype=np.int64),
+                    "window_t1_us": np.asarray(self._t1, dtype=np.int64),
+                    "boxes": np.asarray(self._boxes, dtype=np.int64).reshape(-1, 6),
+                    "sensor_size": np.asarray(self.sensor_size, dtype=np.int64),
+                    "partial": np.asarray(bool(partial)),
+                    "n_events_processed": np.asarray(n_done, dtype=np.int64),
+                    "config": np.asarray(self.config_yaml),
+                }
+                if self.with_masks:
+                    w, h = self.sensor_size
+                    nbytes = (w * h + 7) // 8
+                    arrays["masks"] = np.asarray(self._masks, dtype=np.uint8).reshape(-1, nbytes)
+                for key, arr in arrays.items():
+                    with zf.open(f"{key}.npy", "w", force_zip64=True) as f:
+                        np.lib.format.write_array(f, arr, allow_pickle=False)
+            tmp.replace(self.path)
+        finally:
+            tmp.unlink(missing_ok=True)
+            self._label_path.unlink(missing_ok=True)
+        return self.path
+
+    def abort(self) -> None:
+        """Drop temporary files without writing anything (nothing already on disk is touched)."""
+        if not self._closed:
+            self._closed = True
+            self._label_file.close()
+            self._label_path.unlink(missing_ok=True)
+
+    def __enter__(self) -> "ResultWriter":
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        # An exception (including Ctrl-C) still leaves a readable result of the windows done.
+        self.close(partial=exc_type is not None)
+
+
+def _write_npy_from_file(zf: zipfile.ZipFile, key: str, src: Path, dtype: np.dtype, shape: tuple[int, ...]) -> None:
+    """Copy a raw binary file into the zip as ``key.npy`` in chunks (bounded memory)."""
+    header = {"descr": np.lib.format.dtype_to_descr(dtype), "fortran_order": False, "shape": shape}
+    with zf.open(f"{key}.npy", "w", force_zip64=True) as f, open(src, "rb") as raw:
+        np.lib.format.write_array_header_1_0(f, header)
+        while True:
+            block = raw.read(1 << 24)
+            if not block:
+                break
+            f.write(block)
+
+
+def load_result(path: str | Path) -> SegmentationOutput:
+    """Read a ``result.npz`` written by :class:`ResultWriter`."""
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            missing = {"label", "window_t0_us", "window_t1_us", "boxes", "sensor_size"} - set(z.files)
+            if missing:
+                raise FormatError(f"{path}: not an evseg result, missing keys {sorted(missing)}")
+            return SegmentationOutput(
+                label=z["label"],
+                window_t0_us=z["window_t0_us"],
+                window_t1_us=z["window_t1_us"],
+                boxes=z["boxes"],
+                sensor_size=tuple(int(v) for v in z["sensor_size"]),
+                partial=bool(z["partial"]) if "partial" in z.files else False,
+                n_events_processed=int(z["n_events_processed"]) if "n_events_processed" in z.files else len(z["label"]),
+                config=str(z["config"]) if "config" in z.files else "",
+                masks=z["masks"] if "masks" in z.files else None,
+            )
+    except (OSError, ValueError, zipfile.BadZipFile) as exc:
+        raise FormatError(f"{path}: cannot read segmentation result ({exc})") from None

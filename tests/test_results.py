@@ -1,0 +1,53 @@
+import numpy as np
+import pytest
+
+from evseg.errors import FormatError
+from evseg.results import ResultWriter, load_result
+
+
+def test_writer_roundtrip_with_masks(tmp_path):
+    path = tmp_path / "out" / "result.npz"
+    mask = np.zeros((4, 6), bool)
+    mask[1:3, 2:5] = True
+    with ResultWriter(path, n_events=7, sensor_size=(6, 4), config_yaml="a: 1\n", with_masks=True) as w:
+        w.add_labels([0, 0, 1])
+        w.add_window(0, 10, {1: (2, 1, 4, 2)}, {1: mask})
+        w.add_labels([1, 0])
+        w.add_window(10, 20, {})
+    r = load_result(path)
+    assert r.label.dtype == np.int16
+    assert r.label.tolist() == [0, 0, 1, 1, 0, -1, -1]  # events beyond the windows: -1
+    assert r.window_t0_us.tolist() == [0, 10] and r.window_t1_us.tolist() == [10, 20]
+    assert r.boxes.tolist() == [[0, 1, 2, 1, 4, 2]]
+    np.testing.assert_array_equal(r.mask(0), mask)
+    assert not r.partial and r.n_events_processed == 5 and r.config == "a: 1\n"
+    assert [p.name for p in path.parent.iterdir()] == ["result.npz"]  # no temp files left
+
+
+def test_interrupted_run_leaves_readable_partial_result(tmp_path):
+    path = tmp_path / "result.npz"
+    with pytest.raises(KeyboardInterrupt):
+        with ResultWriter(path, n_events=4, sensor_size=(2, 2)) as w:
+            w.add_labels([0, 2])
+            w.add_window(0, 10, {2: (0, 0, 1, 1)})
+            raise KeyboardInterrupt
+    r = load_result(path)
+    assert r.partial and r.n_events_processed == 2
+    assert r.label.tolist() == [0, 2, -1, -1]
+
+
+def test_existing_file_untouched_until_close(tmp_path):
+    path = tmp_path / "result.npz"
+    path.write_bytes(b"previous")
+    w = ResultWriter(path, n_events=1, sensor_size=(1, 1))
+    w.add_labels([0])
+    assert path.read_bytes() == b"previous"
+    w.abort()
+    assert path.read_bytes() == b"previous"
+
+
+def test_load_rejects_other_npz(tmp_path):
+    p = tmp_path / "x.npz"
+    np.savez(p, a=np.zeros(2))
+    with pytest.raises(FormatError, match="not an evseg result"):
+        load_result(p)

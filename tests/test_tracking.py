@@ -1,0 +1,25 @@
+from evseg.tracking import ObjectTracker, box_iou, shift_box
+
+
+def test_box_iou_and_shift():
+    assert box_iou((0, 0, 9, 9), (0, 0, 9, 9)) == 1.0
+    assert box_iou((0, 0, 4, 4), (5, 5, 9, 9)) == 0.0
+    assert shift_box((0, 0, 9, 9), 3.4, -2.6, sensor_size=(20, 20)) == (3, 0, 12, 7)
+
+
+def test_ids_persist_through_motion_and_swap_of_labels():
+    tr = ObjectTracker()
+    first = tr.update({1: (0, 0, 9, 9), 2: (50, 50, 59, 59)})
+    assert first == {1: 1, 2: 2}
+    tr.predict({1: (5, 0), 2: (0, 5)})
+    # Next window the segmentation numbers the objects the other way round.
+    second = tr.update({1: (50, 55, 59, 64), 2: (5, 0, 14, 9)})
+    assert second == {1: 2, 2: 1}
+
+
+def test_new_object_gets_new_id_and_lost_track_expires():
+    tr = ObjectTracker(max_missed=1)
+    tr.update({1: (0, 0, 9, 9)})
+    assert tr.update({1: (80, 80, 89, 89)}) == {1: 2}
+    tr.update({})
+    assert 1 not in tr.tracks and 2 in tr.tracks
