@@ -4,7 +4,7 @@ from evseg.tracking import ObjectTracker, box_iou, shift_box
 def test_box_iou_and_shift():
     assert box_iou((0, 0, 9, 9), (0, 0, 9, 9)) == 1.0
     assert box_iou((0, 0, 4, 4), (5, 5, 9, 9)) == 0.0
-    assert shift_box((0, 0, 9, 9), 3.4, -2.6, sensor_size=(20, 20)) == (3, 0, 12, 7)
+    assert shift_box((0, 0, 9, 9), 3.4, -2.6, sensor_size=(20, 20)) == (3, 0, 12, 6)  # y1 = 9 - 2.6 = 6.4 -> 6; y0 = -3 clipped to 0
 
 
 def test_ids_persist_through_motion_and_swap_of_labels():
