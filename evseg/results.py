@@ -67,13 +67,14 @@ class ResultWriter:
     """Stream per-window labels and boxes into ``result.npz`` (atomic, bounded memory).
 
     Labels must arrive in input order: :meth:`add_labels` appends the labels of the next
-    events. Events never covered by a window are written as -1 by :meth:`close`.
+    events. When ``n_events`` is known, events never covered by a window are written as -1 by
+    :meth:`close`; when it is None (a stream of unknown length) ``label`` holds the events seen.
     """
 
-    def __init__(self, path: str | Path, n_events: int, sensor_size: tuple[int, int], config_yaml: str = "",
+    def __init__(self, path: str | Path, n_events: int | None, sensor_size: tuple[int, int], config_yaml: str = "",
                  with_masks: bool = False):
         self.path = Path(path)
-        self.n_events = int(n_events)
+        self.n_events = None if n_events is None else int(n_events)
         self.sensor_size = (int(sensor_size[0]), int(sensor_size[1]))
         self.config_yaml = config_yaml
         self.with_masks = with_masks
@@ -91,10 +92,18 @@ class ResultWriter:
     def add_labels(self, labels: np.ndarray) -> None:
         """Append labels for the next ``len(labels)`` events of the input."""
         labels = np.asarray(labels, dtype=LABEL_DTYPE)
-        if self.n_written + len(labels) > self.n_events:
+        if self.n_events is not None and self.n_written + len(labels) > self.n_events:
             raise ValueError(f"more labels ({self.n_written + len(labels)}) than events ({self.n_events})")
         self._label_file.write(labels.tobytes())
         self.n_written += len(labels)
+
+    def add_unassigned(self, n: int) -> None:
+        """Append -1 for the next ``n`` events (events outside every window)."""
+        fill = np.full(min(int(n), 1 << 20), UNASSIGNED, dtype=LABEL_DTYPE)
+        while n > 0:
+            k = min(n, len(fill))
+            self.add_labels(fill[:k])
+            n -= k
 
     def add_window(self, t0_us: int, t1_us: int, boxes: dict[int, tuple[int, int, int, int]],
                    masks: dict[int, np.ndarray] | None = None) -> None:
@@ -115,19 +124,16 @@ class ResultWriter:
             return self.path
         self._closed = True
         n_done = self.n_written
-        fill = np.full(1 << 20, UNASSIGNED, dtype=LABEL_DTYPE)
-        remaining = self.n_events - self.n_written
-        while remaining > 0:
-            k = min(remaining, len(fill))
-            self._label_file.write(fill[:k].tobytes())
-            remaining -= k
+        if self.n_events is not None:
+            self.add_unassigned(self.n_events - self.n_written)
+        n_total = self.n_written
         self._label_file.close()
         fd, tmp_name = tempfile.mkstemp(prefix=".result-", suffix=".npz", dir=self.path.parent)
         os.close(fd)
         tmp = Path(tmp_name)
         try:
             with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_STORED, allowZip64=True) as zf:
-                _write_npy_from_file(zf, "label", self._label_path, LABEL_DTYPE, (self.n_events,))
+                _write_npy_from_file(zf, "label", self._label_path, LABEL_DTYPE, (n_total,))
                 arrays = {
                     "window_t0_us": np.asarray(self._t0, dtype=np.int64),
                     "window_t1_us": np.asarray(self._t1, dtype=np.int64),

@@ -51,3 +51,12 @@ def test_load_rejects_other_npz(tmp_path):
     np.savez(p, a=np.zeros(2))
     with pytest.raises(FormatError, match="not an evseg result"):
         load_result(p)
+
+
+def test_unknown_length_stream_and_gap_fill(tmp_path):
+    path = tmp_path / "r.npz"
+    with ResultWriter(path, n_events=None, sensor_size=(2, 2)) as w:
+        w.add_labels([0])
+        w.add_unassigned(3)
+        w.add_labels([1])
+    assert load_result(path).label.tolist() == [0, -1, -1, -1, 1]
