@@ -1,0 +1,123 @@
+"""Readers and writers of event recordings.
+
+Every reader streams: :func:`open_recording` returns a :class:`Recording` whose
+:meth:`~Recording.chunks` yields :data:`~evseg.events.EVENT_DTYPE` arrays of about
+``chunk_events`` events, validated (sorted, non-negative ``t``; coordinates on the sensor), so
+that a recording larger than memory can be cut into windows with
+:func:`evseg.windows.stream_time_windows`. :func:`read_events` loads a whole file.
+
+Example
+-------
+>>> from evseg.io import open_recording, read_events            # doctest: +SKIP
+>>> with open_recording("events.txt") as rec:                   # doctest: +SKIP
+...     for chunk in rec.chunks():
+...         ...
+>>> stream = read_events("sample.aedat4")                        # doctest: +SKIP
+
+Formats (``FORMATS``; the format is detected from magic bytes and the extension, ``format=``
+overrides): text/csv, npy, npz, mat, h5 (DSEC layout), rosbag (dvs_msgs/EventArray), aedat4,
+evt2, evt3 (Prophesee .raw), es (Event Stream v2 DVS). Writers: :func:`write_npz`,
+:func:`write_h5` (and :func:`write_text`), all atomic and lossless through the readers.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from evseg.errors import EvsegError
+from evseg.events import EventStream
+from evseg.io.recording import DEFAULT_CHUNK_EVENTS, Recording, parse_sensor_size
+from evseg.io.registry import FORMATS, detect_format, format_names
+
+__all__ = [
+    "FORMATS",
+    "Recording",
+    "detect_format",
+    "format_names",
+    "open_recording",
+    "parse_sensor_size",
+    "read_events",
+    "write_h5",
+    "write_npz",
+    "write_text",
+]
+
+
+def open_recording(
+    path: str | Path,
+    format: str | None = None,
+    topic: str | None = None,
+    sensor_size: tuple[int, int] | None = None,
+    chunk_events: int = DEFAULT_CHUNK_EVENTS,
+    sort: bool = False,
+    time_unit: str | None = None,
+) -> Recording:
+    """Open a recording for streaming.
+
+    Args:
+        path: the file.
+        format: registry name (see :data:`FORMATS`); ``None`` detects it.
+        topic: ROS bag topic of the ``dvs_msgs/EventArray`` messages (default: the only one).
+        sensor_size: ``(width, height)`` in px; overrides the file's, or supplies it when the
+            file has none (otherwise it is inferred as max + 1 by :meth:`Recording.read_all`).
+        chunk_events: events per yielded chunk (a bound on memory; some formats yield
+            smaller chunks at their packet boundaries).
+        sort: accept unsorted timestamps and sort them (loads the whole recording).
+        time_unit: text/csv only: ``"s"`` or ``"us"`` for the time column (default: seconds
+            when the first time value has a decimal point or exponent, else microseconds).
+    """
+    from evseg.io.registry import open_source
+
+    path = Path(path)
+    fmt = format if format is not None else detect_format(path)
+    options = {}
+    if topic is not None:
+        if fmt != "rosbag":
+            raise EvsegError(f"{path}: a topic only applies to ROS bags, this file is {fmt}")
+        options["topic"] = topic
+    if time_unit is not None:
+        if fmt != "text":
+            raise EvsegError(f"{path}: a time unit only applies to text/csv files, this file is {fmt}")
+        options["time_unit"] = time_unit
+    source = open_source(path, fmt, **options)
+    try:
+        return Recording(path, source, sensor_size=sensor_size, chunk_events=chunk_events, sort=sort)
+    except Exception:
+        source.close()
+        raise
+
+
+def read_events(
+    path: str | Path,
+    format: str | None = None,
+    sensor_size: tuple[int, int] | None = None,
+    **kw,
+) -> EventStream:
+    """Read a whole recording into an :class:`~evseg.events.EventStream`.
+
+    ``sensor_size`` overrides the file's; when neither is known it is ``(max x + 1,
+    max y + 1)``. Other keywords as for :func:`open_recording`.
+    """
+    with open_recording(path, format=format, sensor_size=sensor_size, **kw) as rec:
+        return rec.read_all()
+
+
+def write_npz(stream: EventStream, path: str | Path) -> Path:
+    """Write ``stream`` to an .npz that :func:`read_events` reads back losslessly (atomic)."""
+    from evseg.io.numpy_files import write_npz as _write
+
+    return _write(stream, path)
+
+
+def write_h5(stream: EventStream, path: str | Path) -> Path:
+    """Write ``stream`` as DSEC-style HDF5 that :func:`read_events` reads back losslessly."""
+    from evseg.io.hdf5 import write_h5 as _write
+
+    return _write(stream, path)
+
+
+def write_text(stream: EventStream, path: str | Path) -> Path:
+    """Write ``stream`` as text ``t x y p`` (t seconds, 6 decimals: lossless to the us)."""
+    from evseg.io.text import write_text as _write
+
+    return _write(stream, path)

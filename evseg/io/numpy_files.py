@@ -1,0 +1,289 @@
+"""numpy recordings (.npy, .npz) and the project's own .npz writer.
+
+Layouts read:
+
+* a structured array (alone in an ``.npy``, or under the key ``events`` of an ``.npz``) with
+  fields ``x``, ``y``, a time field (``t``/``ts``/``timestamp``/``time``) and a polarity field
+  (``p``/``pol``/``polarity``/``on``; bool, 0/1 or -1/+1), as the EED excerpt
+  ``events_t_us_x_y_on.npy``;
+* an N x 4 array ``[t, x, y, p]`` (alone in an ``.npy`` or under ``events``), as the ECD poster
+  files of ``ecd_poster``;
+* an ``.npz`` with column keys ``x``, ``y``, ``t`` (or an alias above) and ``p`` (or alias).
+
+Time unit: integer time fields are microseconds, floating-point ones seconds
+(``rint(t * 1e6)``). Other keys of an ``.npz`` are ignored except ``sensor_size`` (or
+``width`` and ``height``), ``t_offset_us`` and the calibration ``K`` (3x3) and ``D`` (radtan),
+exposed as :attr:`Recording.calibration` (its sensor size is the declared one, else max + 1).
+
+``.npy`` files are memory-mapped (streaming from disk); an ``.npz`` member is loaded whole
+(zip members cannot be memory-mapped), then sliced into chunks.
+"""
+
+from __future__ import annotations
+
+import shutil
+import tempfile
+import zipfile
+from pathlib import Path
+from typing import Iterable, Iterator
+
+import numpy as np
+
+from evseg.errors import FormatError
+from evseg.events import EVENT_DTYPE, EventStream
+from evseg.io._atomic import atomic_path
+from evseg.io.recording import Chunk
+
+TIME_NAMES = ("t", "ts", "timestamp", "time", "t_us", "timestamp_us")
+POLARITY_NAMES = ("p", "pol", "polarity", "on")
+
+
+def _pick(names: Iterable[str], wanted: tuple[str, ...]) -> str | None:
+    names = list(names)
+    for w in wanted:
+        if w in names:
+            return w
+    return None
+
+
+def _field_names(a: np.ndarray) -> list[str]:
+    """Field names and titles of a structured array (EED's npy titles 'on' as 'p')."""
+    names = list(a.dtype.names or ())
+    titles = [v[2] for v in a.dtype.fields.values() if len(v) > 2 and isinstance(v[2], str)]
+    return names + titles
+
+
+def columns_to_events(
+    t: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray, where: str, first_index: int = 0
+) -> np.ndarray:
+    """Convert decoded columns to :data:`EVENT_DTYPE`, checking values.
+
+    ``t`` is microseconds when integer, seconds when floating point. Raises
+    :class:`FormatError` naming ``where`` and the event index of the first NaN/inf,
+    non-integer or negative coordinate, or polarity outside {0, 1, -1, True, False}.
+    """
+    cols = {"t": np.asarray(t), "x": np.asarray(x), "y": np.asarray(y), "p": np.asarray(p)}
+    for name, c in cols.items():
+        if c.dtype.kind not in "biuf":
+            raise FormatError(f"{where}: field '{name}' has non-numeric dtype {c.dtype}")
+        if c.dtype.kind == "f":
+            bad = np.flatnonzero(~np.isfinite(c))
+            if len(bad):
+                i = int(bad[0])
+                raise FormatError(f"{where}: field '{name}' is {c[i]} (not finite) at event {first_index + i}")
+    for name in "xy":
+        c = cols[name]
+        if c.dtype.kind in "if":
+            out = (c < 0) | (c > 65535)
+            if c.dtype.kind == "f":
+                out |= c != np.floor(c)
+            bad = np.flatnonzero(out)
+            if len(bad):
+                i = int(bad[0])
+                raise FormatError(
+                    f"{where}: field '{name}' = {c[i]} at event {first_index + i} is not a pixel "
+                    "coordinate (an integer in 0..65535)"
+                )
+    p = cols["p"]
+    if p.dtype.kind != "b":
+        bad = np.flatnonzero((p != 0) & (p != 1) & (p != -1))
+        if len(bad):
+            i = int(bad[0])
+            raise FormatError(f"{where}: field 'p' = {p[i]} at event {first_index + i} is not 0, 1 or -1")
+    t = cols["t"]
+    if t.dtype.kind == "f":
+        t_us = t.astype(np.float64) * 1e6
+    elif t.dtype.kind == "u" and len(t) and int(t.max()) > 2**63 - 1:
+        i = int(np.argmax(t))
+        raise FormatError(f"{where}: field 't' = {t[i]} at event {first_index + i} is out of range")
+    else:
+        t_us = t
+    ev = np.empty(len(t), dtype=EVENT_DTYPE)
+    ev["t"] = np.rint(t_us) if t.dtype.kind == "f" else t_us
+    ev["x"] = cols["x"]
+    ev["y"] = cols["y"]
+    ev["p"] = np.where(p > 0, 1, -1) if p.dtype.kind != "b" else np.where(p, 1, -1)
+    return ev
+
+
+class ArraySource:
+    """Chunks of an in-memory or memory-mapped array in one of the layouts above."""
+
+    def __init__(self, path: Path, format: str, get_columns, n: int, sensor_size=None,
+                 t_offset_us: int = 0, calibration_KD=None) -> None:
+        self.path = path
+        self.format = format
+        self.sensor_size = sensor_size
+        self.t_offset_us = int(t_offset_us)
+        self._get = get_columns  # (start, stop) -> (t, x, y, p)
+        self._n = n
+        self.calibration = None
+        if calibration_KD is not None:
+            self.calibration = self._calibration(*calibration_KD)
+
+    def _calibration(self, K, D):
+        from evseg.calibration import Calibration
+        from evseg.errors import CalibrationError
+
+        size = self.sensor_size
+        if size is None:
+            _, x, y, _ = self._get(0, self._n)
+            size = (int(np.max(x)) + 1, int(np.max(y)) + 1) if self._n else (1, 1)
+        try:
+            return Calibration(np.asarray(K), np.asarray(D), size)
+        except CalibrationError as exc:
+            raise FormatError(f"{self.path}: {self.format}: keys 'K'/'D': {exc}") from None
+
+    def chunks(self, chunk_events: int) -> Iterator[Chunk]:
+        where = f"{self.path}: {self.format}"
+        for start in range(0, self._n, chunk_events):
+            stop = min(self._n, start + chunk_events)
+            t, x, y, p = self._get(start, stop)
+            yield Chunk(columns_to_events(t, x, y, p, where, first_index=start))
+
+    def close(self) -> None:
+        self._get = None
+
+
+def _structured_getter(a: np.ndarray, where: str):
+    names = _field_names(a)
+    tn, pn = _pick(names, TIME_NAMES), _pick(names, POLARITY_NAMES)
+    missing = [k for k, v in (("x", "x" in names), ("y", "y" in names), ("t", tn), ("p", pn)) if not v]
+    if missing:
+        raise FormatError(
+            f"{where}: structured array with fields {names} lacks {missing} "
+            f"(time: {'/'.join(TIME_NAMES)}; polarity: {'/'.join(POLARITY_NAMES)})"
+        )
+    return lambda i, j: (a[tn][i:j], a["x"][i:j], a["y"][i:j], a[pn][i:j])
+
+
+def _nx4_getter(a: np.ndarray, where: str):
+    if a.ndim != 2 or a.shape[1] != 4:
+        raise FormatError(
+            f"{where}: expected a structured array or an N x 4 [t, x, y, p] array, got shape "
+            f"{a.shape} dtype {a.dtype}"
+        )
+    return lambda i, j: (a[i:j, 0], a[i:j, 1], a[i:j, 2], a[i:j, 3])
+
+
+def _array_getter(a: np.ndarray, where: str):
+    return _structured_getter(a, where) if a.dtype.names else _nx4_getter(a, where)
+
+
+def _load_npy(path: Path, where: str) -> np.ndarray:
+    try:
+        return np.load(path, mmap_mode="r", allow_pickle=False)
+    except ValueError as exc:
+        msg = str(exc)
+        if "allow_pickle" in msg or "Object arrays" in msg:
+            raise FormatError(f"{where}: holds Python objects (pickles), which evseg does not load") from None
+        raise FormatError(f"{where}: corrupt .npy header or truncated data ({msg})") from None
+    except (OSError, EOFError) as exc:
+        raise FormatError(f"{where}: corrupt or truncated .npy ({exc})") from None
+
+
+def _npz_member(z, key: str, where: str) -> np.ndarray:
+    try:
+        return z[key]
+    except ValueError as exc:
+        if "allow_pickle" in str(exc):
+            raise FormatError(f"{where}: key '{key}' holds Python objects (pickles), not loaded") from None
+        raise FormatError(f"{where}: key '{key}' is corrupt or truncated ({exc})") from None
+    except (OSError, EOFError, zipfile.BadZipFile, KeyError) as exc:
+        raise FormatError(f"{where}: key '{key}' is corrupt or truncated ({exc})") from None
+
+
+def _open_npz(path: Path, where: str) -> ArraySource:
+    try:
+        z = np.load(path, allow_pickle=False)
+    except (zipfile.BadZipFile, ValueError, OSError, EOFError) as exc:
+        raise FormatError(f"{where}: not a readable zip archive ({exc})") from None
+    with z:
+        keys = list(z.keys())
+        sensor_size = None
+        if "sensor_size" in keys:
+            s = _npz_member(z, "sensor_size", where).ravel()
+            if len(s) != 2:
+                raise FormatError(f"{where}: key 'sensor_size' must hold [width, height], got {s.tolist()}")
+            sensor_size = (int(s[0]), int(s[1]))
+        elif "width" in keys and "height" in keys:
+            sensor_size = (int(_npz_member(z, "width", where)), int(_npz_member(z, "height", where)))
+        t_offset = int(_npz_member(z, "t_offset_us", where)) if "t_offset_us" in keys else 0
+        kd = None
+        if "K" in keys and "D" in keys:
+            kd = (_npz_member(z, "K", where), _npz_member(z, "D", where))
+        if "events" in keys:
+            a = _npz_member(z, "events", where)
+            get, n = _array_getter(a, f"{where}: key 'events'"), len(a)
+        else:
+            tn, pn = _pick(keys, TIME_NAMES), _pick(keys, POLARITY_NAMES)
+            missing = [k for k, v in (("x", "x" in keys), ("y", "y" in keys), ("t", tn), ("p", pn)) if not v]
+            if missing:
+                raise FormatError(
+                    f"{where}: no 'events' key and no column keys {missing} (keys present: {keys})"
+                )
+            cols = {k: _npz_member(z, k, where).ravel() for k in ("x", "y", tn, pn)}
+            n = len(cols["x"])
+            for k, c in cols.items():
+                if len(c) != n:
+                    raise FormatError(f"{where}: column '{k}' has {len(c)} values, 'x' has {n}")
+            get = lambda i, j: (cols[tn][i:j], cols["x"][i:j], cols["y"][i:j], cols[pn][i:j])  # noqa: E731
+    return ArraySource(path, "npz", get, n, sensor_size, t_offset, kd)
+
+
+def open_source(path: Path, format: str) -> ArraySource:
+    where = f"{path}: {format}"
+    if format == "npz":
+        return _open_npz(path, where)
+    a = _load_npy(path, where)
+    return ArraySource(path, "npy", _array_getter(a, where), len(a) if a.ndim else 0)
+
+
+def write_npz_chunks(
+    chunks: Iterable[np.ndarray],
+    path: str | Path,
+    meta,
+) -> Path:
+    """Stream event chunks into an .npz (bounded memory), atomically.
+
+    Args:
+        chunks: :data:`EVENT_DTYPE` arrays in order.
+        path: output file.
+        meta: called after the last chunk, returns ``(sensor_size, t_offset_us, calibration)``
+            (so a sensor size inferred during the pass can be written).
+
+    Layout: ``events`` (structured :data:`EVENT_DTYPE`), ``sensor_size`` [w, h] int64,
+    ``t_offset_us`` int64, and ``K``, ``D`` when there is a calibration.
+    """
+    path = Path(path)
+    with atomic_path(path) as tmp, tempfile.TemporaryDirectory(dir=path.parent) as work:
+        raw = Path(work) / "events.bin"
+        n = 0
+        with open(raw, "wb") as f:
+            for c in chunks:
+                c = np.ascontiguousarray(c, dtype=EVENT_DTYPE)
+                f.write(c.tobytes())
+                n += len(c)
+        sensor_size, t_offset_us, calibration = meta()
+        with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_STORED, allowZip64=True) as zf:
+            with zf.open("events.npy", "w", force_zip64=True) as member:
+                header = {"descr": np.lib.format.dtype_to_descr(EVENT_DTYPE), "fortran_order": False,
+                          "shape": (n,)}
+                np.lib.format.write_array_header_2_0(member, header)
+                with open(raw, "rb") as f:
+                    shutil.copyfileobj(f, member, 1 << 22)
+            extra = {"sensor_size": np.asarray(sensor_size, dtype=np.int64),
+                     "t_offset_us": np.asarray(t_offset_us, dtype=np.int64)}
+            if calibration is not None:
+                extra["K"], extra["D"] = calibration.K, calibration.D
+            for key, arr in extra.items():
+                with zf.open(f"{key}.npy", "w") as member:
+                    np.lib.format.write_array(member, arr, allow_pickle=False)
+    return path
+
+
+def write_npz(stream: EventStream, path: str | Path) -> Path:
+    """Write ``stream`` to ``path`` (.npz, layout of :func:`write_npz_chunks`), atomically."""
+    return write_npz_chunks(
+        [stream.events], path, lambda: (stream.sensor_size, stream.t_offset_us, stream.calibration)
+    )

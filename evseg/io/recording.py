@@ -1,0 +1,268 @@
+"""The reader interface: a :class:`Recording` streams validated event chunks from one file.
+
+Every format module provides a *source*: an object with the metadata the file declares
+(sensor size, time offset, calibration) and a generator of raw :class:`Chunk` s. A
+:class:`Recording` wraps a source and checks each chunk against the event model before handing
+it on, so a broken file fails with one message naming the file, the format and the position
+(line, byte offset or event index), never with a numpy traceback from deep inside a decoder.
+
+Checks applied to every chunk (across chunk boundaries too):
+
+* timestamps must be non-negative and non-decreasing. Unsorted input is rejected unless the
+  recording is opened with ``sort=True``, which loads the whole recording, sorts it stably by
+  ``t`` and then streams the sorted copy (memory: the whole recording);
+* coordinates must lie on the sensor when the file (or the caller) declares its size.
+
+When neither the file nor the caller gives a sensor size, :meth:`Recording.read_all` infers it
+as ``(max x + 1, max y + 1)`` and records that in :attr:`Recording.sensor_size_source`
+(``"inferred"``), so callers can say so.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Callable, Iterator, Protocol
+
+import numpy as np
+
+from evseg.errors import EventDataError
+from evseg.events import EVENT_DTYPE, EventStream, empty_events
+
+if TYPE_CHECKING:  # pragma: no cover
+    from evseg.calibration import Calibration
+
+DEFAULT_CHUNK_EVENTS = 1_000_000
+"""Events per chunk yielded by the readers (about 16 MB of :data:`EVENT_DTYPE`)."""
+
+
+@dataclass(frozen=True)
+class Chunk:
+    """Events decoded from one stretch of a file.
+
+    Attributes:
+        events: :data:`EVENT_DTYPE` array, ``t`` in microseconds relative to the source's
+            ``t_offset_us``; not yet validated.
+        locate: maps an index into ``events`` to a position in the file for error messages
+            (e.g. ``"line 12"`` or ``"byte offset 4096"``); ``None`` means "event <index>".
+    """
+
+    events: np.ndarray
+    locate: Callable[[int], str] | None = None
+
+
+class Source(Protocol):
+    """What a format module provides to :class:`Recording` (see module docstring)."""
+
+    format: str
+    sensor_size: tuple[int, int] | None
+    t_offset_us: int
+    calibration: "Calibration | None"
+
+    def chunks(self, chunk_events: int) -> Iterator[Chunk]: ...
+
+    def close(self) -> None: ...
+
+
+class Recording:
+    """A recording file opened for streaming; use as a context manager.
+
+    Attributes:
+        path: the file.
+        format: registry name of the format (see :data:`evseg.io.FORMATS`).
+        sensor_size: ``(width, height)`` in px from the caller, the file, or (after
+            :meth:`read_all` or a full pass of :meth:`chunks`) inferred; ``None`` if unknown.
+        sensor_size_source: ``"user"``, ``"file"``, ``"inferred"`` or ``None``.
+        t_offset_us: absolute time (us) of ``t == 0`` in the chunks.
+        calibration: intrinsics stored in the file, if any.
+    """
+
+    def __init__(
+        self,
+        path: Path,
+        source: Source,
+        sensor_size: tuple[int, int] | None = None,
+        chunk_events: int = DEFAULT_CHUNK_EVENTS,
+        sort: bool = False,
+    ) -> None:
+        if int(chunk_events) <= 0:
+            raise ValueError(f"chunk_events must be positive, got {chunk_events}")
+        self.path = Path(path)
+        self.format = source.format
+        self._source = source
+        self._chunk_events = int(chunk_events)
+        self._sort = bool(sort)
+        if sensor_size is not None:
+            self.sensor_size: tuple[int, int] | None = _check_sensor_size(sensor_size)
+            self.sensor_size_source: str | None = "user"
+        elif source.sensor_size is not None:
+            self.sensor_size = _check_sensor_size(source.sensor_size)
+            self.sensor_size_source = "file"
+        else:
+            self.sensor_size, self.sensor_size_source = None, None
+        self.t_offset_us = int(source.t_offset_us)
+        self.calibration = source.calibration
+
+    def __enter__(self) -> "Recording":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        self._source.close()
+
+    def __repr__(self) -> str:
+        return (
+            f"Recording({str(self.path)!r}, format={self.format!r}, sensor_size={self.sensor_size}, "
+            f"t_offset_us={self.t_offset_us})"
+        )
+
+    def _where(self, chunk: Chunk, i: int, global_index: int) -> str:
+        pos = f"event {global_index}"
+        if chunk.locate is not None:
+            pos += f" ({chunk.locate(i)})"
+        return pos
+
+    def _raw_checked(self, check_sorted: bool) -> Iterator[np.ndarray]:
+        """Validated chunks of the source, in file order."""
+        label = f"{self.path}: {self.format}"
+        seen = 0
+        t_prev = None
+        max_x = max_y = -1
+        for chunk in self._source.chunks(self._chunk_events):
+            ev = chunk.events
+            if ev.dtype != EVENT_DTYPE:  # a bug in a format module, not a user error
+                raise TypeError(f"{self.format} reader produced dtype {ev.dtype}")
+            if len(ev) == 0:
+                continue
+            t = ev["t"]
+            neg = np.flatnonzero(t < 0)
+            if len(neg):
+                i = int(neg[0])
+                raise EventDataError(
+                    f"{label}: negative timestamp t={int(t[i])} us at {self._where(chunk, i, seen + i)}"
+                )
+            if check_sorted:
+                steps = np.diff(t)
+                if t_prev is not None and t[0] < t_prev:
+                    bad = 0
+                else:
+                    dec = np.flatnonzero(steps < 0)
+                    bad = int(dec[0]) + 1 if len(dec) else -1
+                if bad >= 0:
+                    before = t_prev if bad == 0 else int(t[bad - 1])
+                    raise EventDataError(
+                        f"{label}: timestamps not sorted: t={int(t[bad])} us at "
+                        f"{self._where(chunk, bad, seen + bad)} is earlier than the previous event's "
+                        f"t={before} us (open with sort=True / pass --sort to sort the events)"
+                    )
+            if self.sensor_size is not None:
+                for name, limit in zip("xy", self.sensor_size):
+                    off = np.flatnonzero(ev[name] >= limit)
+                    if len(off):
+                        i = int(off[0])
+                        raise EventDataError(
+                            f"{label}: field '{name}' = {int(ev[name][i])} at "
+                            f"{self._where(chunk, i, seen + i)} is outside the sensor "
+                            f"{self.sensor_size[0]}x{self.sensor_size[1]} ({self.sensor_size_source})"
+                        )
+            else:
+                max_x = max(max_x, int(ev["x"].max()))
+                max_y = max(max_y, int(ev["y"].max()))
+            t_prev = int(t[-1])
+            seen += len(ev)
+            yield ev
+        if self.sensor_size is None and max_x >= 0:
+            self.sensor_size = (max_x + 1, max_y + 1)
+            self.sensor_size_source = "inferred"
+
+    def chunks(self) -> Iterator[np.ndarray]:
+        """Yield validated :data:`EVENT_DTYPE` chunks (t relative to :attr:`t_offset_us`).
+
+        Memory is bounded by one chunk, except with ``sort=True`` (whole recording).
+        Each call starts again from the beginning of the file.
+        """
+        if not self._sort:
+            yield from self._raw_checked(check_sorted=True)
+            return
+        allev = _concat(list(self._raw_checked(check_sorted=False)))
+        order = np.argsort(allev["t"], kind="stable")
+        allev = allev[order]
+        for i in range(0, len(allev), self._chunk_events):
+            yield allev[i : i + self._chunk_events]
+
+    def read_all(self) -> EventStream:
+        """The whole recording in memory as an :class:`~evseg.events.EventStream`.
+
+        Raises :class:`EventDataError` if the sensor size is unknown and there are no events
+        to infer it from.
+        """
+        events = _concat(list(self.chunks()))
+        if self.sensor_size is None:
+            raise EventDataError(
+                f"{self.path}: {self.format}: the file declares no sensor size and has no events "
+                "to infer it from; pass sensor_size=(width, height) / --sensor-size WxH"
+            )
+        cal = self.calibration
+        if cal is not None and tuple(cal.sensor_size) != tuple(self.sensor_size):
+            from evseg.calibration import Calibration
+
+            cal = Calibration(cal.K, cal.D, self.sensor_size)
+        return EventStream(events, self.sensor_size, self.t_offset_us, cal)
+
+
+def _concat(chunks: list[np.ndarray]) -> np.ndarray:
+    if not chunks:
+        return empty_events()
+    if len(chunks) == 1:
+        # Chunks may be views of memory-mapped or cached arrays: own the result.
+        return np.array(chunks[0], dtype=EVENT_DTYPE, copy=True)
+    return np.concatenate(chunks)
+
+
+def _check_sensor_size(size) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in size)
+    except (TypeError, ValueError):
+        raise EventDataError(f"sensor_size must be (width, height), got {size!r}") from None
+    if w <= 0 or h <= 0 or w > 65536 or h > 65536:
+        raise EventDataError(f"sensor_size must be positive and at most 65536, got {size!r}")
+    return (w, h)
+
+
+def parse_sensor_size(text: str) -> tuple[int, int]:
+    """Parse ``"WxH"`` (e.g. ``"346x260"``) into ``(width, height)``.
+
+    >>> parse_sensor_size("346x260")
+    (346, 260)
+    """
+    parts = text.lower().replace(",", "x").split("x")
+    if len(parts) != 2 or not all(p.strip().isdigit() for p in parts):
+        raise EventDataError(f"sensor size must look like WIDTHxHEIGHT (e.g. 346x260), got {text!r}")
+    return _check_sensor_size((int(parts[0]), int(parts[1])))
+
+
+def events_from_columns(
+    x: np.ndarray, y: np.ndarray, t_us: np.ndarray, p: np.ndarray, where: str
+) -> np.ndarray:
+    """Build an :data:`EVENT_DTYPE` array from decoded columns, checking their range.
+
+    ``x``, ``y`` must be integers in ``[0, 65535]``; ``t_us`` is integer microseconds;
+    ``p`` any polarity encoding (bool, 0/1, -1/+1). ``where`` names the file and format for
+    the error message, which gives the index of the first bad value.
+    """
+    ev = np.empty(len(x), dtype=EVENT_DTYPE)
+    for name, col in (("x", x), ("y", y)):
+        col = np.asarray(col)
+        if col.dtype.kind in "iuf" and len(col):
+            bad = np.flatnonzero((col < 0) | (col > 65535))
+            if len(bad):
+                i = int(bad[0])
+                raise EventDataError(f"{where}: field '{name}' = {col[i]} at event {i} is not a pixel coordinate")
+        ev[name] = col
+    ev["t"] = t_us
+    from evseg.events import polarity_to_signed
+
+    ev["p"] = polarity_to_signed(p)
+    return ev

@@ -1,0 +1,152 @@
+"""Format registry: which reader opens a file, from its magic bytes and suffix.
+
+Detection reads the first bytes of the file. A known magic number decides the format; the
+suffix is only used for formats without one (text) and to catch files whose content
+contradicts their extension (e.g. an HDF5 file named ``.npz``): those are refused with a
+message naming both, unless the caller names the format explicitly (``format=`` /
+``--format``), which skips detection.
+"""
+
+from __future__ import annotations
+
+import importlib
+from dataclasses import dataclass
+from pathlib import Path
+
+from evseg.errors import FormatError
+
+
+@dataclass(frozen=True)
+class FormatSpec:
+    """One supported format.
+
+    Attributes:
+        name: registry name (``--format`` value).
+        module: ``evseg.io`` module whose ``open_source(path, **options)`` reads it.
+        suffixes: file name endings that suggest this format (lower case, with dot).
+        magic: leading bytes that identify the format (``b""``: none).
+        description: one line for ``--help`` and the README.
+    """
+
+    name: str
+    module: str
+    suffixes: tuple[str, ...]
+    magic: bytes
+    description: str
+
+
+FORMATS: dict[str, FormatSpec] = {
+    s.name: s
+    for s in [
+        FormatSpec("text", "text", (".txt", ".csv", ".dat"), b"",
+                   "text 't x y p' (t seconds, optional 'width height' first line) or csv"),
+        FormatSpec("npy", "numpy_files", (".npy",), b"\x93NUMPY",
+                   "numpy .npy: structured events or N x 4 [t, x, y, p]"),
+        FormatSpec("npz", "numpy_files", (".npz",), b"PK\x03\x04",
+                   "numpy .npz: 'events' array or x/y/t/p columns (+ K, D calibration)"),
+        FormatSpec("mat", "matlab", (".mat",), b"MATLAB 5.0 MAT-file",
+                   "MATLAB v5 .mat, variable 'events' N x 4 [x, y, p, t_us]"),
+        FormatSpec("h5", "hdf5", (".h5", ".hdf5", ".hdf"), b"\x89HDF\r\n\x1a\n",
+                   "DSEC-style HDF5: events/{x,y,t,p}, t_offset, ms_to_idx"),
+        FormatSpec("rosbag", "rosbag", (".bag",), b"#ROSBAG V2.0\n",
+                   "ROS1 bag with dvs_msgs/EventArray messages (no ROS needed)"),
+        FormatSpec("aedat4", "aedat4", (".aedat4",), b"#!AER-DAT4.0",
+                   "iniVation AEDAT4 (event packets; frames and IMU are skipped)"),
+        FormatSpec("evt2", "prophesee", (".raw",), b"%",
+                   "Prophesee .raw EVT 2.0"),
+        FormatSpec("evt3", "prophesee", (".raw",), b"%",
+                   "Prophesee .raw EVT 3.0"),
+        FormatSpec("es", "eventstream", (".es",), b"Event Stream",
+                   "Event Stream v2 .es, type DVS"),
+    ]
+}
+"""Supported formats by registry name."""
+
+_SNIFF_BYTES = 4096
+
+
+def format_names() -> list[str]:
+    """Registry names of all supported formats."""
+    return list(FORMATS)
+
+
+def _by_magic(head: bytes) -> str | None:
+    for spec in FORMATS.values():
+        if spec.magic and spec.magic != b"%" and head.startswith(spec.magic):
+            return spec.name
+    if head.startswith(b"%"):
+        from evseg.io.prophesee import sniff_raw_format
+
+        return sniff_raw_format(head)
+    return None
+
+
+def _looks_like_text(head: bytes) -> bool:
+    try:
+        text = head.decode("ascii")
+    except UnicodeDecodeError:
+        return False
+    return all(c.isprintable() or c in "\r\n\t" for c in text)
+
+
+def detect_format(path: str | Path) -> str:
+    """Registry name of the format of ``path`` (see module docstring).
+
+    Raises :class:`FormatError` for missing or empty files, unknown content, and content that
+    contradicts the extension.
+    """
+    path = Path(path)
+    try:
+        with open(path, "rb") as f:
+            head = f.read(_SNIFF_BYTES)
+    except FileNotFoundError:
+        raise FormatError(f"{path}: file not found") from None
+    except IsADirectoryError:
+        raise FormatError(f"{path}: is a directory, not a recording file") from None
+    except OSError as exc:
+        raise FormatError(f"{path}: cannot read ({exc.strerror})") from None
+    if not head:
+        raise FormatError(f"{path}: empty file (0 bytes), no events to read")
+    suffix = path.suffix.lower()
+    by_suffix = [s.name for s in FORMATS.values() if suffix in s.suffixes]
+    by_magic = _by_magic(head)
+    if by_magic is not None and by_magic not in FORMATS:
+        raise FormatError(
+            f"{path}: Prophesee .raw header names encoding '{by_magic}', which evseg does not read "
+            "(supported: evt2, evt3; pass --format evt2 or evt3 if the header is wrong)"
+        )
+    if by_magic is not None:
+        if by_suffix and by_magic not in by_suffix:
+            raise FormatError(
+                f"{path}: the extension '{suffix}' says {'/'.join(by_suffix)} but the content "
+                f"(magic bytes at offset 0) is {by_magic}; pass --format {by_magic} "
+                "(format=...) to read it as such"
+            )
+        return by_magic
+    if by_suffix and by_suffix != ["text"]:
+        spec = FORMATS[by_suffix[0]]
+        raise FormatError(
+            f"{path}: not a valid {'/'.join(by_suffix)} file: bad magic bytes at offset 0 "
+            f"(expected {spec.magic!r}, got {head[:len(spec.magic) or 8]!r})"
+        )
+    if _looks_like_text(head):
+        return "text"
+    raise FormatError(
+        f"{path}: unknown format (magic bytes {head[:8]!r} at offset 0, extension '{suffix}'); "
+        f"supported: {', '.join(FORMATS)}"
+    )
+
+
+def open_source(path: Path, format: str, **options):
+    """Open ``path`` with the reader of ``format`` (no detection)."""
+    if format not in FORMATS:
+        raise FormatError(f"{path}: unknown format '{format}'; supported: {', '.join(FORMATS)}")
+    if not path.exists():
+        raise FormatError(f"{path}: file not found")
+    if path.is_dir():
+        raise FormatError(f"{path}: is a directory, not a recording file")
+    if path.stat().st_size == 0:
+        raise FormatError(f"{path}: empty file (0 bytes), no events to read")
+    spec = FORMATS[format]
+    module = importlib.import_module(f"evseg.io.{spec.module}")
+    return module.open_source(path, format=format, **options)

@@ -1,0 +1,227 @@
+"""Text recordings: ``t x y p`` per line (RPG / EMSGC ``events.txt``) and csv.
+
+Layout:
+
+* optional comment lines starting with ``#`` and blank lines (skipped everywhere);
+* optional first line ``width height`` (two integers): the sensor size;
+* optional csv header naming the columns (``t``/``ts``/``timestamp``/``time``, ``x``, ``y``,
+  ``p``/``pol``/``polarity``/``on``; a ``_us`` or ``_s`` suffix on the time column sets its
+  unit); without a header the columns are ``t x y p``;
+* one event per line, separated by whitespace or commas (decided by the first data line).
+
+Time unit: seconds when the first time value has a decimal point or exponent, microseconds
+otherwise (``time_unit=`` overrides). Seconds are converted with ``rint(t * 1e6)``, exact to
+the microsecond for ``|t| < 2**31`` s (float64 keeps 0.25 us there). Polarity 0/-1 is OFF.
+
+Reading is chunked: blocks of ``chunk_events`` lines parsed by numpy; error messages give the
+line number.
+"""
+
+from __future__ import annotations
+
+import io
+import itertools
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from evseg.errors import FormatError
+from evseg.events import EVENT_DTYPE, EventStream
+from evseg.io._atomic import atomic_path
+from evseg.io.recording import Chunk
+
+_ALIASES = {
+    "t": ("t", "ts", "timestamp", "time", "t_us", "ts_us", "timestamp_us", "time_us", "t_s",
+          "timestamp_s", "time_s"),
+    "x": ("x",),
+    "y": ("y",),
+    "p": ("p", "pol", "polarity", "on"),
+}
+
+
+def _is_number(tok: bytes) -> bool:
+    try:
+        float(tok)
+    except ValueError:
+        return False
+    return True
+
+
+class TextSource:
+    """Streaming reader of one text/csv file (see module docstring)."""
+
+    format = "text"
+
+    def __init__(self, path: Path, format: str = "text", time_unit: str | None = None) -> None:
+        if time_unit not in (None, "s", "us"):
+            raise FormatError(f"{path}: time_unit must be 's' or 'us', got {time_unit!r}")
+        self.path = path
+        self.calibration = None
+        self.t_offset_us = 0
+        self.sensor_size: tuple[int, int] | None = None
+        self._where = f"{path}: text"
+        self._columns = [0, 1, 2, 3]  # positions of t, x, y, p
+        self._ncols = 4
+        self._delimiter: str | None = None
+        self._unit = time_unit
+        self._data_start = 0  # number of lines before the first data line
+        self._scan_header()
+
+    def _lines(self):
+        """(line number from 1, raw line) of non-blank, non-comment lines."""
+        with open(self.path, "rb") as f:
+            for n, line in enumerate(f, start=1):
+                s = line.strip()
+                if s and not s.startswith(b"#"):
+                    yield n, s
+
+    def _scan_header(self) -> None:
+        first = list(itertools.islice(self._lines(), 3))
+        if not first:
+            raise FormatError(f"{self._where}: no events (only blank or comment lines)")
+        i = 0
+        n, line = first[0]
+        toks = line.replace(b",", b" ").split()
+        if len(toks) == 2 and all(t.isdigit() for t in toks):
+            self.sensor_size = (int(toks[0]), int(toks[1]))
+            if min(self.sensor_size) <= 0:
+                raise FormatError(f"{self._where}: line {n}: sensor size must be positive, got {line!r}")
+            self._data_start = n
+            i = 1
+        if i < len(first) and not all(_is_number(t) for t in first[i][1].replace(b",", b" ").split()):
+            n, line = first[i]
+            self._parse_column_names(n, line)
+            self._data_start = n
+            i += 1
+        if i >= len(first):
+            return  # a header and no events: an empty recording
+        n, line = first[i]
+        self._delimiter = "," if b"," in line else None
+        toks = line.split(b",") if self._delimiter else line.split()
+        if len(toks) != self._ncols:
+            raise FormatError(
+                f"{self._where}: line {n}: expected {self._ncols} columns (t x y p), got {len(toks)}: "
+                f"{line[:80]!r}"
+            )
+        if self._unit is None:
+            t_tok = toks[self._columns[0]].strip().lower()
+            self._unit = "s" if (b"." in t_tok or b"e" in t_tok) else "us"
+
+    def _parse_column_names(self, n: int, line: bytes) -> None:
+        try:
+            names = [t.strip().lower() for t in line.decode("ascii").replace(",", " ").split()]
+        except UnicodeDecodeError:
+            raise FormatError(f"{self._where}: line {n}: not ASCII text") from None
+        cols = []
+        for key in "txyp":
+            hits = [i for i, nm in enumerate(names) if nm in _ALIASES[key]]
+            if len(hits) != 1:
+                raise FormatError(
+                    f"{self._where}: line {n}: header {names} must name exactly one '{key}' column "
+                    f"(accepted: {', '.join(_ALIASES[key])})"
+                )
+            cols.append(hits[0])
+        self._columns, self._ncols = cols, len(names)
+        tname = names[cols[0]]
+        if self._unit is None and tname.endswith("_us"):
+            self._unit = "us"
+        elif self._unit is None and tname.endswith("_s"):
+            self._unit = "s"
+
+    def chunks(self, chunk_events: int) -> Iterator[Chunk]:
+        lines = self._lines()
+        # Skip the header lines.
+        lines = itertools.dropwhile(lambda nl: nl[0] <= self._data_start, lines)
+        while True:
+            block = list(itertools.islice(lines, chunk_events))
+            if not block:
+                return
+            numbers = np.fromiter((n for n, _ in block), dtype=np.int64, count=len(block))
+            yield Chunk(self._parse_block(block, numbers), lambda i, nums=numbers: f"line {nums[i]}")
+
+    def _parse_block(self, block: list[tuple[int, bytes]], numbers: np.ndarray) -> np.ndarray:
+        try:
+            text = b"\n".join(line for _, line in block).decode("ascii")
+        except UnicodeDecodeError:
+            for n, line in block:
+                try:
+                    line.decode("ascii")
+                except UnicodeDecodeError as exc:
+                    raise FormatError(
+                        f"{self._where}: line {n}: not ASCII text (byte {line[exc.start]:#04x})"
+                    ) from None
+            raise  # pragma: no cover - the loop above always finds the line
+        try:
+            a = np.loadtxt(io.StringIO(text), delimiter=self._delimiter, dtype=np.float64, ndmin=2)
+        except ValueError:
+            self._raise_bad_line(block)
+        if a.shape[1] != self._ncols:
+            self._raise_bad_line(block)
+        t, x, y, p = (a[:, c] for c in self._columns)
+        for name, col in (("t", t), ("x", x), ("y", y), ("p", p)):
+            bad = np.flatnonzero(~np.isfinite(col))
+            if len(bad):
+                i = int(bad[0])
+                raise FormatError(f"{self._where}: line {numbers[i]}: field '{name}' is {col[i]} (not finite)")
+        for name, col in (("x", x), ("y", y)):
+            bad = np.flatnonzero((col != np.floor(col)) | (col < 0) | (col > 65535))
+            if len(bad):
+                i = int(bad[0])
+                raise FormatError(
+                    f"{self._where}: line {numbers[i]}: field '{name}' = {col[i]} is not a pixel "
+                    "coordinate (an integer in 0..65535)"
+                )
+        bad = np.flatnonzero((p != 0) & (p != 1) & (p != -1))
+        if len(bad):
+            i = int(bad[0])
+            raise FormatError(f"{self._where}: line {numbers[i]}: field 'p' = {p[i]} is not 0, 1 or -1")
+        t_us = t * 1e6 if self._unit == "s" else t
+        bad = np.flatnonzero(np.abs(t_us) > 2**62)
+        if len(bad):
+            i = int(bad[0])
+            raise FormatError(f"{self._where}: line {numbers[i]}: field 't' = {t[i]} is out of range")
+        ev = np.empty(len(a), dtype=EVENT_DTYPE)
+        ev["t"] = np.rint(t_us).astype(np.int64)
+        ev["x"] = x
+        ev["y"] = y
+        ev["p"] = np.where(p > 0, 1, -1)
+        return ev
+
+    def _raise_bad_line(self, block: list[tuple[int, bytes]]):
+        for n, line in block:
+            toks = line.split(b",") if self._delimiter else line.split()
+            if len(toks) != self._ncols:
+                raise FormatError(
+                    f"{self._where}: line {n}: expected {self._ncols} columns, got {len(toks)}: {line[:80]!r}"
+                )
+            for tok in toks:
+                if not _is_number(tok):
+                    raise FormatError(f"{self._where}: line {n}: {tok[:40]!r} is not a number")
+        raise FormatError(f"{self._where}: lines {block[0][0]}-{block[-1][0]}: cannot parse as numbers")
+
+    def close(self) -> None:
+        pass
+
+
+def open_source(path: Path, format: str = "text", time_unit: str | None = None) -> TextSource:
+    return TextSource(path, format, time_unit)
+
+
+def write_text(stream: EventStream, path: str | Path) -> Path:
+    """Write ``width height`` then ``t x y p`` lines (t absolute seconds, 6 decimals; p 1/0).
+
+    Atomic; :func:`evseg.io.read_events` gives back the same absolute times (its
+    ``t_offset_us`` is 0), coordinates and polarities.
+    """
+    ev = stream.events
+    t_abs = ev["t"].astype(np.int64) + int(stream.t_offset_us)
+    cols = np.stack(
+        [t_abs // 1_000_000, t_abs % 1_000_000, ev["x"], ev["y"], (ev["p"] > 0)], axis=1
+    ).astype(np.int64)
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        with open(tmp, "w") as f:
+            f.write(f"{stream.width} {stream.height}\n")
+            np.savetxt(f, cols, fmt="%d.%06d %d %d %d")
+    return path
