@@ -217,29 +217,58 @@ def _log_uniform(rng: np.random.Generator, lo: float, hi: float) -> float:
     return float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
 
 
-def augment_slice(s: FlowSlice, cfg: AugmentConfig, rng: np.random.Generator) -> FlowSlice:
-    """Apply one random draw of every augmentation in ``cfg`` (a new slice; input untouched).
+@dataclass(frozen=True)
+class AugmentDraw:
+    """One concrete draw of :class:`AugmentConfig`: the parameters applied to one slice.
+
+    Drawn before the slice is cut, because the time scale decides how long a stretch of the
+    recording to cut (``slice_us / time_scale``) so that every augmented slice spans the
+    same duration.
+    """
+
+    keep_fraction: float = 1.0
+    time_scale: float = 1.0
+    scale: float = 1.0
+    angle_rad: float = 0.0
+    flip_horizontal: bool = False
+    flip_vertical: bool = False
+    noise_rate_ev_px_s: float = 0.0
+
+
+def draw_augmentation(cfg: AugmentConfig, rng: np.random.Generator) -> AugmentDraw:
+    """Draw the parameters of one augmentation from ``cfg``."""
+    return AugmentDraw(
+        keep_fraction=float(rng.uniform(*cfg.keep_range)),
+        time_scale=_log_uniform(rng, *cfg.time_scale_range),
+        scale=_log_uniform(rng, *cfg.scale_range),
+        angle_rad=float(rng.uniform(0.0, 2 * np.pi)) if cfg.rotation else 0.0,
+        flip_horizontal=bool(rng.integers(2)) if cfg.flip else False,
+        flip_vertical=bool(rng.integers(2)) if cfg.flip else False,
+        noise_rate_ev_px_s=float(rng.uniform(*cfg.noise_rate_range)),
+    )
+
+
+def apply_augmentation(s: FlowSlice, d: AugmentDraw, rng: np.random.Generator) -> FlowSlice:
+    """Apply ``d`` to ``s`` (a new slice; input untouched); ``rng`` drives subsampling and noise.
 
     The order is rate subsampling, time scaling, scale, rotation, flips, then noise, so that
     noise is uniform in the final image.
     """
-    keep = float(rng.uniform(*cfg.keep_range))
-    if keep < 1.0:
-        s = subsample_slice(s, keep, rng)
-    k = _log_uniform(rng, *cfg.time_scale_range)
-    if k != 1.0:
-        s = time_scale_slice(s, k)
-    sc = _log_uniform(rng, *cfg.scale_range)
-    if sc != 1.0:
-        s = scale_slice(s, sc)
-    if cfg.rotation:
-        s = rotate_slice(s, float(rng.uniform(0.0, 2 * np.pi)))
-    if cfg.flip:
-        fh, fv = bool(rng.integers(2)), bool(rng.integers(2))
-        if fh or fv:
-            s = flip_slice(s, fh, fv)
-    rate = float(rng.uniform(*cfg.noise_rate_range))
-    if rate > 0:
-        s = add_noise_events(s, rate, rng)
+    if d.keep_fraction < 1.0:
+        s = subsample_slice(s, d.keep_fraction, rng)
+    if d.time_scale != 1.0:
+        s = time_scale_slice(s, d.time_scale)
+    if d.scale != 1.0:
+        s = scale_slice(s, d.scale)
+    if d.angle_rad != 0.0:
+        s = rotate_slice(s, d.angle_rad)
+    if d.flip_horizontal or d.flip_vertical:
+        s = flip_slice(s, d.flip_horizontal, d.flip_vertical)
+    if d.noise_rate_ev_px_s > 0:
+        s = add_noise_events(s, d.noise_rate_ev_px_s, rng)
     return s
 
+
+def augment_slice(s: FlowSlice, cfg: AugmentConfig, rng: np.random.Generator) -> FlowSlice:
+    """Draw one augmentation from ``cfg`` and apply it (a new slice; input untouched)."""
+    return apply_augmentation(s, draw_augmentation(cfg, rng), rng)

@@ -1,0 +1,139 @@
+"""LightningModule of the normal-flow head: losses, metrics, optimiser.
+
+The module owns one :class:`evseg.veckm_flow.FlowHead` as ``self.head`` (so checkpoint keys are
+``head.*``) and saves ``encoding`` (the :class:`~evseg.veckm_flow.EncodingConfig` fields) and
+``head`` (the head's constructor arguments) as hyper-parameters: the checkpoint format
+:func:`evseg.veckm_flow.load_head_checkpoint` reads.
+
+Batches come from :class:`evseg.train.data.NormalFlowDataModule`: ``features`` (B, F) float32,
+``normal_flow`` and ``optical_flow`` (B, 2) float32 px/s with NaN where unknown. Each row is
+trained with the normal-flow loss when its GT normal flow is known (simulated data), otherwise
+with VecKM_flow's loss against its GT optical flow (users' real recordings). The uncertainty
+output is trained with a negative log-likelihood of the realised angular error, so it predicts
+that error (radians).
+"""
+
+from __future__ import annotations
+
+import math
+
+import lightning.pytorch as pl
+import torch
+
+from evseg.veckm_flow.encoding import EncodingConfig
+from evseg.veckm_flow.model import FlowHead
+from evseg.veckm_flow import losses as L
+
+
+class NormalFlowModule(pl.LightningModule):
+    """Train a :class:`~evseg.veckm_flow.FlowHead` on precomputed encoder features.
+
+    Args:
+        encoding: :class:`~evseg.veckm_flow.EncodingConfig` fields (also used by the data).
+        head: keyword arguments of :class:`~evseg.veckm_flow.FlowHead` besides the input width
+            (which follows from ``encoding``).
+        lr: peak learning rate (AdamW, one-cycle schedule over the run's steps).
+        weight_decay: AdamW weight decay.
+        uncertainty_weight: weight of the uncertainty NLL in the total loss.
+        optical_flow_weight: weight of VecKM_flow's optical-flow loss (rows without GT normal
+            flow) relative to the normal-flow loss.
+    """
+
+    def __init__(
+        self,
+        encoding: dict | None = None,
+        head: dict | None = None,
+        lr: float = 3e-3,
+        weight_decay: float = 1e-4,
+        uncertainty_weight: float = 0.1,
+        optical_flow_weight: float = 1.0,
+    ):
+        super().__init__()
+        encoding = EncodingConfig.from_dict(dict(encoding or {})).to_dict()
+        head = dict(head or {})
+        self.save_hyperparameters({"encoding": encoding, "head": head, "lr": lr,
+                                   "weight_decay": weight_decay,
+                                   "uncertainty_weight": uncertainty_weight,
+                                   "optical_flow_weight": optical_flow_weight})
+        self.encoding_config = EncodingConfig.from_dict(encoding)
+        self.head = FlowHead(in_features=self.encoding_config.n_features, **head)
+        self.flow_unit_px_s = float(self.encoding_config.flow_unit_px_s)
+
+    def forward(self, features: torch.Tensor) -> torch.Tensor:
+        """(B, F) features -> (B, 3) head output (flow in head units, log uncertainty)."""
+        return self.head(features)
+
+    # ------------------------------------------------------------------ loss
+
+    def _losses(self, batch: dict) -> dict[str, torch.Tensor]:
+        out = self(batch["features"])
+        pred = out[:, :2]
+        log_u = out[:, 2]
+        nf = batch["normal_flow"] / self.flow_unit_px_s
+        of = batch["optical_flow"] / self.flow_unit_px_s
+        has_nf = torch.isfinite(nf).all(dim=1)
+        has_of = torch.isfinite(of).all(dim=1) & ~has_nf
+        zero = out.sum() * 0.0  # keeps every parameter in the graph (DDP needs it)
+        parts = {"nf": zero, "of": zero, "nll": zero}
+        # Error label of the uncertainty output: the angular error (rad) where GT normal flow
+        # is known; VecKM_flow's distance from the circle of consistent normal flows where only
+        # optical flow is (the gradient direction, hence an angle, is unknown there).
+        err = torch.zeros_like(log_u)
+        ae = L.angular_error(pred, torch.nan_to_num(nf))
+        if has_nf.any():
+            parts["nf"] = L.normal_flow_loss(pred[has_nf], nf[has_nf]).mean()
+            err = torch.where(has_nf, ae, err)
+        if has_of.any():
+            parts["of"] = L.veckm_optical_flow_loss(pred[has_of], of[has_of]).mean()
+            err = torch.where(has_of, L.optical_flow_error(pred, torch.nan_to_num(of)), err)
+        known = has_nf | has_of
+        if known.any():
+            # uncertainty_nll detaches the error: the uncertainty learns it, the flow is not
+            # pulled by it.
+            parts["nll"] = L.uncertainty_nll(log_u[known], err[known]).mean()
+        n_nf, n_of = has_nf.sum(), has_of.sum()
+        flow_loss = (n_nf * parts["nf"] + self.hparams.optical_flow_weight * n_of * parts["of"]) / known.sum().clamp(min=1)
+        parts["loss"] = flow_loss + self.hparams.uncertainty_weight * parts["nll"]
+        parts["angular_error_deg"] = torch.rad2deg(ae[has_nf]).detach()
+        parts["sign_ok"] = ((pred[has_nf] * nf[has_nf]).sum(dim=1) > 0).float().detach()
+        return parts
+
+    def training_step(self, batch: dict, batch_idx: int) -> torch.Tensor:
+        parts = self._losses(batch)
+        bs = len(batch["features"])
+        self.log("train/loss", parts["loss"], prog_bar=True, batch_size=bs)
+        self.log_dict({f"train/{k}": parts[k] for k in ("nf", "of", "nll")}, batch_size=bs)
+        return parts["loss"]
+
+    def on_validation_epoch_start(self) -> None:
+        self._val_err: list[torch.Tensor] = []
+        self._val_sign: list[torch.Tensor] = []
+
+    def validation_step(self, batch: dict, batch_idx: int) -> None:
+        parts = self._losses(batch)
+        self.log("val/loss", parts["loss"], prog_bar=True, sync_dist=True, batch_size=len(batch["features"]))
+        self._val_err.append(parts["angular_error_deg"])
+        self._val_sign.append(parts["sign_ok"])
+
+    def on_validation_epoch_end(self) -> None:
+        # Per-process median and rate, averaged over processes: gathering rows of unequal
+        # length across DDP ranks is not portable, and the shards are large enough that the
+        # per-rank median is the global one to within noise.
+        if self._val_err:
+            err = torch.cat(self._val_err)
+            if err.numel():
+                self.log("val/median_ae_deg", err.median(), prog_bar=True, sync_dist=True)
+        if self._val_sign:
+            sign = torch.cat(self._val_sign)
+            if sign.numel():
+                self.log("val/sign_correct", sign.mean(), sync_dist=True)
+
+    # ------------------------------------------------------------------ optimiser
+
+    def configure_optimizers(self):
+        opt = torch.optim.AdamW(self.parameters(), lr=self.hparams.lr, weight_decay=self.hparams.weight_decay)
+        total = self.trainer.estimated_stepping_batches
+        if not math.isfinite(total) or total <= 0:
+            return opt
+        sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=self.hparams.lr, total_steps=int(total), pct_start=0.1)
+        return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
