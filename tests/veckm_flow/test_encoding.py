@@ -1,0 +1,114 @@
+import numpy as np
+import pytest
+
+from evseg.calibration import Calibration
+from evseg.errors import ConfigError, EventDataError
+from evseg.veckm_flow import EncodingConfig, encode_targets, encoding_matrix
+from evseg.veckm_flow.encoding import encode_targets_reference, time_phase_tables, undistorted_to_sensor_flow
+
+# The fast path accumulates in complex64 while the reference is float64; features have
+# magnitude ~1 (norm sqrt(d)), so 1e-4 is ~1000 float32 ulps, far below any effect on the head.
+ATOL = 1e-4
+
+
+@pytest.mark.parametrize("k,n", [(1, 500), (3, 2000), (8, 4000)])
+def test_fast_encoding_matches_direct_window_sum(k, n, make_slice):
+    cfg = EncodingConfig(d=8, window_px=k, seed=1)
+    ev = make_slice(n, (40, 30), seed=k)
+    targets = np.arange(0, n, 7)
+    fast = encode_targets(ev, targets, (40, 30), cfg)
+    ref = encode_targets_reference(ev, targets, (40, 30), cfg)
+    assert fast.shape == (len(targets), cfg.n_features) and fast.dtype == np.float32
+    np.testing.assert_allclose(fast, ref, atol=ATOL)
+
+
+def test_features_have_vecKM_norm_and_count(make_slice):
+    cfg = EncodingConfig(d=16, window_px=2)
+    ev = make_slice(300, (20, 10))
+    f = encode_targets(ev, np.arange(300), (20, 10), cfg)
+    np.testing.assert_allclose(np.linalg.norm(f[:, :32], axis=1), 4.0, rtol=1e-5)  # sqrt(16)
+    # Event 0's window: all events within 2 px in x and y (itself included).
+    x, y = ev["x"].astype(int), ev["y"].astype(int)
+    n0 = np.sum((abs(x - x[0]) <= 2) & (abs(y - y[0]) <= 2))
+    assert f[0, -1] == pytest.approx(np.log1p(n0), rel=1e-6)
+
+
+def test_encoding_is_translation_invariant_in_space_and_time(make_slice):
+    cfg = EncodingConfig(d=16, window_px=3)
+    ev = make_slice(400, (20, 20), seed=5)
+    shifted = ev.copy()
+    shifted["x"] += 7
+    shifted["y"] += 11
+    shifted["t"] += 123_457
+    targets = np.flatnonzero((ev["x"] >= 4) & (ev["x"] < 16) & (ev["y"] >= 4) & (ev["y"] < 16))
+    a = encode_targets(ev, targets, (40, 40), cfg)
+    b = encode_targets(shifted, targets, (40, 40), cfg)
+    np.testing.assert_allclose(a, b, atol=ATOL)
+
+
+def test_time_tables_are_exact_factorisation():
+    cfg = EncodingConfig(d=4)
+    hi, lo = time_phase_tables(cfg, 50_000)
+    dt = np.array([0, 1, 1023, 1024, 37_777, 50_000])
+    a_t = encoding_matrix(cfg)[2] / cfg.t_scale_us
+    expect = np.exp(1j * np.outer(dt, a_t))
+    np.testing.assert_allclose(hi[dt >> 10] * lo[dt & 1023], expect, atol=1e-6)  # complex64 rounding
+
+
+def test_does_not_mutate_input_and_is_deterministic(make_slice):
+    cfg = EncodingConfig(d=8, window_px=2)
+    ev = make_slice(500, (30, 20))
+    before = ev.copy()
+    a = encode_targets(ev, np.arange(0, 500, 3), (30, 20), cfg)
+    b = encode_targets(ev, np.arange(0, 500, 3), (30, 20), cfg)
+    np.testing.assert_array_equal(ev, before)
+    np.testing.assert_array_equal(a, b)
+
+
+def test_matrix_is_seeded():
+    a = encoding_matrix(EncodingConfig(d=8, seed=0, alpha=2.0))
+    b = encoding_matrix(EncodingConfig(d=8, seed=0, alpha=2.0))
+    c = encoding_matrix(EncodingConfig(d=8, seed=1, alpha=2.0))
+    np.testing.assert_array_equal(a, b)
+    assert a.shape == (3, 8) and not np.allclose(a, c)
+
+
+def test_config_validation_and_roundtrip():
+    cfg = EncodingConfig(d=24, window_px=5, alpha=3.0, t_scale_us=2000.0, seed=7)
+    assert EncodingConfig.from_dict(cfg.to_dict()) == cfg
+    assert cfg.flow_unit_px_s == pytest.approx(8.0 / 0.002)
+    with pytest.raises(ConfigError, match="window_px"):
+        EncodingConfig(window_px=0)
+    with pytest.raises(ConfigError, match="unknown"):
+        EncodingConfig.from_dict({"d": 8, "radius": 3})
+
+
+def test_bad_targets_and_events_raise(make_slice):
+    cfg = EncodingConfig(d=4, window_px=1)
+    ev = make_slice(10, (8, 8))
+    with pytest.raises(EventDataError, match="position 10"):
+        encode_targets(ev, np.array([10]), (8, 8), cfg)
+    with pytest.raises(EventDataError, match="outside"):
+        encode_targets(ev, np.array([0]), (4, 4), cfg)
+    assert encode_targets(ev, np.zeros(0, np.int64), (8, 8), cfg).shape == (0, 9)
+
+
+def test_calibrated_encoding_matches_reference_with_undistorted_positions(make_slice):
+    K = np.array([[30.0, 0, 20], [0, 30.0, 15], [0, 0, 1]])
+    cal = Calibration(K, np.array([-0.3, 0.1, 0.001, -0.001]), (40, 30))
+    cfg = EncodingConfig(d=8, window_px=3)
+    ev = make_slice(1500, (40, 30), seed=2)
+    targets = np.arange(0, 1500, 11)
+    fast = encode_targets(ev, targets, (40, 30), cfg, calibration=cal)
+    ref = encode_targets_reference(ev, targets, (40, 30), cfg, calibration=cal)
+    np.testing.assert_allclose(fast, ref, atol=ATOL)
+    assert not np.allclose(fast, encode_targets(ev, targets, (40, 30), cfg), atol=1e-2)
+
+
+def test_undistorted_to_sensor_flow_identity_and_scaling():
+    # No distortion: undistorted == raw pixels, flow unchanged.
+    K = np.array([[50.0, 0, 20], [0, 50.0, 15], [0, 0, 1]])
+    cal = Calibration(K, np.zeros(4), (40, 30))
+    nx, ny = undistorted_to_sensor_flow(np.array([100.0, -30.0]), np.array([0.0, 40.0]), np.array([5, 20]), np.array([5, 10]), cal)
+    np.testing.assert_allclose(nx, [100.0, -30.0], rtol=1e-4)  # float32 undistortion map
+    np.testing.assert_allclose(ny, [0.0, 40.0], atol=1e-3)

@@ -1,0 +1,143 @@
+"""Classical normal flow: local plane fit of the time surface (method.md section 2).
+
+The time surface of a slice holds the latest timestamp of each pixel. Around each target event
+a plane ``t = a dx + b dy + c`` is fitted by least squares to the surface pixels of the
+``(2r+1)^2`` window whose timestamps lie within ``max_dt_us`` of the target's time;
+``g = (a, b)`` (s/px) is the surface gradient and the normal flow is ``n = g / |g|^2`` (px/s).
+Rejected fits (too few pixels, residual too large, flat surface) get NaN flow and infinite
+uncertainty. The uncertainty of an accepted fit is the standard error of the gradient's
+direction (radians) from the least-squares covariance, the same unit the learned model uses.
+
+The fit is done in raw pixel coordinates, so the flow is directly in px/s of the sensor grid;
+a calibration is accepted for interface parity but not needed: the distortion is locally linear
+over a 7x7 window, and the normal flow of the sensor grid is what is reported.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from evseg.events import validate_events
+from evseg.veckm_flow.result import NormalFlow
+
+if TYPE_CHECKING:  # pragma: no cover
+    from evseg.calibration import Calibration
+
+
+def time_surface(events: np.ndarray, sensor_size: tuple[int, int]) -> np.ndarray:
+    """Latest timestamp (us) per pixel of a slice: int64 ``(H, W)``, -1 where no event."""
+    from evseg.veckm_flow import _kernels
+
+    w, h = int(sensor_size[0]), int(sensor_size[1])
+    pix = events["y"].astype(np.int64) * w + events["x"].astype(np.int64)
+    last = _kernels.latest_per_cell(pix, w * h)
+    ts = np.full(w * h, -1, np.int64)
+    hit = last >= 0
+    ts[hit] = events["t"][last[hit]]
+    return ts.reshape(h, w)
+
+
+def plane_fit_normal_flow(
+    events: np.ndarray,
+    targets: np.ndarray,
+    sensor_size: tuple[int, int],
+    radius_px: int = 3,
+    min_points: int = 8,
+    max_dt_us: int | None = None,
+    max_rms_us: float = 1000.0,
+    min_grad_s_px: float = 1e-6,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Plane-fit normal flow of the targets of one slice.
+
+    Args:
+        events: :data:`~evseg.events.EVENT_DTYPE` ``(N,)`` sorted by ``t`` (us).
+        targets: int ``(T,)`` positions in ``events``.
+        sensor_size: ``(width, height)`` px.
+        radius_px: window half-width ``r``, px.
+        min_points: fewer valid surface pixels -> rejected.
+        max_dt_us: surface pixels further than this from the target's time are ignored
+            (None: all of the slice).
+        max_rms_us: fits with a larger residual RMS (us) are rejected.
+        min_grad_s_px: gradients below this (s/px, i.e. faster than 1e6 px/s) are rejected.
+
+    Returns:
+        ``(nx, ny, uncertainty)`` float32 ``(T,)``: px/s, angular standard error (rad); NaN /
+        inf where rejected.
+    """
+    w, h = int(sensor_size[0]), int(sensor_size[1])
+    targets = np.asarray(targets, dtype=np.int64)
+    r = int(radius_px)
+    ts = np.pad(time_surface(events, sensor_size), r, constant_values=-1)
+    tx = events["x"][targets].astype(np.int64)
+    ty = events["y"][targets].astype(np.int64)
+    tt = events["t"][targets].astype(np.int64)
+    dy, dx = np.mgrid[-r : r + 1, -r : r + 1]
+    dx = dx.ravel().astype(np.float64)
+    dy = dy.ravel().astype(np.float64)
+    # (T, K) surface values around each target (padded indices: +r).
+    win = ts[(ty[:, None] + r + dy.astype(np.int64)), (tx[:, None] + r + dx.astype(np.int64))]
+    valid = win >= 0
+    if max_dt_us is not None:
+        valid &= np.abs(win - tt[:, None]) <= max_dt_us
+    wv = valid.astype(np.float64)
+    tau = np.where(valid, (win - tt[:, None]) * 1e-6, 0.0)  # s, relative to the target
+    n = wv.sum(1)
+    # Normal equations of [dx, dy, 1] (T, 3, 3) and right-hand side (T, 3).
+    X = np.stack([np.broadcast_to(dx, win.shape), np.broadcast_to(dy, win.shape), np.ones(win.shape)], -1)
+    XtX = np.einsum("tk,tki,tkj->tij", wv, X, X)
+    Xty = np.einsum("tk,tki,tk->ti", wv, X, tau)
+    enough = n >= max(min_points, 4)
+    XtX[~enough] = np.eye(3)  # keep solve well-posed; those targets are rejected below
+    det = np.linalg.det(XtX)
+    ok = enough & (np.abs(det) > 1e-9)
+    XtX[~ok] = np.eye(3)
+    coef = np.linalg.solve(XtX, Xty[..., None])[..., 0]
+    resid = np.where(valid, tau - np.einsum("tki,ti->tk", X, coef), 0.0)
+    dof = np.maximum(n - 3, 1)
+    sigma2 = (resid**2).sum(1) / dof  # s^2
+    a, b = coef[:, 0], coef[:, 1]
+    g2 = a * a + b * b
+    ok &= np.sqrt(sigma2) * 1e6 <= max_rms_us
+    ok &= np.sqrt(g2) >= min_grad_s_px
+    cov = np.linalg.inv(XtX) * sigma2[:, None, None]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        var_theta = (a * a * cov[:, 1, 1] + b * b * cov[:, 0, 0] - 2 * a * b * cov[:, 0, 1]) / (g2 * g2)
+        nx = np.where(ok, a / g2, np.nan)
+        ny = np.where(ok, b / g2, np.nan)
+    unc = np.where(ok, np.sqrt(np.maximum(var_theta, 0.0)), np.inf)
+    return nx.astype(np.float32), ny.astype(np.float32), unc.astype(np.float32)
+
+
+@dataclass(frozen=True)
+class PlaneFitNormalFlow:
+    """Plane-fit normal flow estimator with the interface of ``OnnxNormalFlow``.
+
+    Attributes: see :func:`plane_fit_normal_flow`.
+    """
+
+    radius_px: int = 3
+    min_points: int = 8
+    max_dt_us: int | None = None
+    max_rms_us: float = 1000.0
+
+    def __call__(
+        self,
+        events: np.ndarray,
+        sensor_size: tuple[int, int],
+        targets: np.ndarray | None = None,
+        calibration: "Calibration | None" = None,
+    ) -> NormalFlow:
+        """Normal flow of ``targets`` (default: every event) of the slice ``events``."""
+        validate_events(events, sensor_size, source="plane-fit normal flow input")
+        if targets is None:
+            targets = np.arange(len(events), dtype=np.int64)
+        from evseg.veckm_flow.encoding import _validate_targets
+
+        targets = _validate_targets(targets, len(events))
+        nx, ny, unc = plane_fit_normal_flow(
+            events, targets, sensor_size, self.radius_px, self.min_points, self.max_dt_us, self.max_rms_us
+        )
+        return NormalFlow(targets, nx, ny, unc)

@@ -1,0 +1,337 @@
+"""VecKM-style local event encoding in O(N) events: a per-pixel complex field and box sums.
+
+Each target event i is encoded by the sum over the events j of the same slice that lie in the
+``(2k+1) x (2k+1)`` pixel window around it (``k = window_px``, clipped at the sensor border)::
+
+    G_i = sum_j exp(i A^T (p_j - p_i)),   p = (x / xy_scale_px, y / xy_scale_px, t / t_scale_us)
+
+with ``A`` a fixed random ``(3, d)`` matrix, entries ``N(0, 1) * alpha`` drawn from
+``numpy.random.default_rng(seed)`` (rows: x, y, t). Because ``p_j - p_i`` is relative, the sum
+factorises into ``exp(-i A^T p_i) * sum_j exp(i A^T p_j)``: the second factor is a box sum of the
+per-pixel complex field ``F(x, y) = sum_{j at (x, y)} exp(i A^T p_j)`` (method.md section 3).
+The box sum is done in two passes over the pixel grid (running sums along each row, then along
+each column of the row-box sums), so a target costs O(d) whatever the window size, and the whole
+encoding costs O(N d + W H d + T d): linear in events, no N x N adjacency.
+
+Precision: the field uses complex64. The column running sums only accumulate row-box sums
+(bounded by the events of a ``2k+1`` pixel wide strip), not the whole image as a 2-D
+summed-area table would, so float32 rounding stays far below one event's contribution.
+
+Time: ``t`` enters only through differences; internally it is taken relative to the slice's
+first event (integer microseconds, exact) and the per-event phase ``exp(i a_t t / t_scale_us)``
+is the product of two small exact tables (high and low 10 bits of the microsecond offset), so no
+per-event transcendental function is evaluated.
+
+Coordinates: without a calibration, ``x, y`` are raw integer pixels. With one, the *positions*
+``(x, y)`` in ``p`` are the undistorted pixel coordinates of each event's pixel (OpenCV,
+``P = K``, so still in px), while the *neighbourhood* stays the raw-pixel window: no binning of
+non-integer coordinates is needed because each pixel's spatial phase is looked up from a
+per-pixel table. The network then sees undistorted local geometry, and its output (normal flow
+in undistorted px/s) is mapped back to the sensor grid by :func:`undistorted_to_sensor_flow`.
+
+Features (``encode_targets``): float32 ``(T, 2 d + 1)``: real parts, imaginary parts of ``G_i``
+rescaled to norm ``sqrt(d)`` (as VecKM does), then ``log(1 + n_i)`` with ``n_i`` the number of
+events in the window (the rescaling discards the count, which tells dense texture from a lone
+event).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields
+from functools import lru_cache
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from evseg.errors import ConfigError, EventDataError
+
+if TYPE_CHECKING:  # pragma: no cover
+    from evseg.calibration import Calibration
+
+# Split of a microsecond offset into high and low parts for the exact two-table time phase.
+_LO_BITS = 10
+_LO_SIZE = 1 << _LO_BITS
+
+
+@dataclass(frozen=True)
+class EncodingConfig:
+    """Constants of the VecKM-style encoding (stored with every exported model).
+
+    Attributes:
+        d: number of complex features (the head sees ``2 d + 1`` real inputs).
+        window_px: half-width ``k`` of the square neighbourhood window, px (window ``2k+1``).
+        alpha: standard deviation of the random matrix entries (kernel sharpness: the
+            encoding's spatial resolution is about ``xy_scale_px / alpha`` px and its temporal
+            resolution about ``t_scale_us / alpha`` us).
+        xy_scale_px: spatial normalisation, px (coordinates enter as ``x / xy_scale_px``).
+        t_scale_us: temporal normalisation, microseconds (times enter as ``t / t_scale_us``).
+        seed: seed of ``numpy.random.default_rng`` that draws the random matrix.
+    """
+
+    d: int = 32
+    window_px: int = 8
+    alpha: float = 4.0
+    xy_scale_px: float = 8.0
+    t_scale_us: float = 5000.0
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        for name in ("d", "window_px", "seed"):
+            v = getattr(self, name)
+            if int(v) != v or (v < 0 if name == "seed" else v < 1):
+                raise ConfigError(f"EncodingConfig: field '{name}' must be a positive integer, got {v!r}")
+            object.__setattr__(self, name, int(v))
+        for name in ("alpha", "xy_scale_px", "t_scale_us"):
+            v = float(getattr(self, name))
+            if not np.isfinite(v) or v <= 0:
+                raise ConfigError(f"EncodingConfig: field '{name}' must be a positive number, got {v!r}")
+            object.__setattr__(self, name, v)
+
+    @property
+    def n_features(self) -> int:
+        """Width ``F = 2 d + 1`` of :func:`encode_targets`'s output."""
+        return 2 * self.d + 1
+
+    @property
+    def flow_unit_px_s(self) -> float:
+        """px/s of one head output unit: ``xy_scale_px`` px per ``t_scale_us`` us."""
+        return self.xy_scale_px / (self.t_scale_us * 1e-6)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, doc: dict) -> "EncodingConfig":
+        """Build from a dict (YAML, checkpoint hyper-parameters, ONNX metadata); unknown keys
+        raise :class:`ConfigError`."""
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(doc) - known)
+        if unknown:
+            raise ConfigError(f"EncodingConfig: unknown field(s) {unknown}; known: {sorted(known)}")
+        return cls(**doc)
+
+
+def encoding_matrix(cfg: EncodingConfig) -> np.ndarray:
+    """The fixed random matrix ``A``: float64 ``(3, d)``, rows (x, y, t), entries N(0,1)*alpha."""
+    rng = np.random.default_rng(cfg.seed)
+    return rng.standard_normal((3, cfg.d)) * cfg.alpha
+
+
+@lru_cache(maxsize=8)
+def _spatial_phase_raw(cfg: EncodingConfig, width: int, height: int) -> np.ndarray:
+    """``exp(i (a_x x + a_y y) / xy_scale_px)`` per raw pixel: complex64 ``(H, W, d)``."""
+    A = encoding_matrix(cfg)
+    px = np.exp(1j * np.outer(np.arange(width), A[0]) / cfg.xy_scale_px)
+    py = np.exp(1j * np.outer(np.arange(height), A[1]) / cfg.xy_scale_px)
+    return (py[:, None, :] * px[None, :, :]).astype(np.complex64)
+
+
+def spatial_phase(
+    cfg: EncodingConfig,
+    sensor_size: tuple[int, int],
+    calibration: "Calibration | None" = None,
+    matrix: np.ndarray | None = None,
+) -> np.ndarray:
+    """Per-pixel spatial phase ``exp(i (a_x x + a_y y) / xy_scale_px)``: complex64 ``(H, W, d)``.
+
+    ``(x, y)`` are raw pixels, or the pixel's undistorted coordinates (px) with a calibration.
+    The raw table is cached per (config, sensor size); cache the calibrated one yourself
+    (:class:`~evseg.veckm_flow.inference.OnnxNormalFlow` does).
+    """
+    width, height = int(sensor_size[0]), int(sensor_size[1])
+    if calibration is None and matrix is None:
+        return _spatial_phase_raw(cfg, width, height)
+    A = encoding_matrix(cfg) if matrix is None else _check_matrix(matrix, cfg)
+    if calibration is None:
+        yu, xu = np.mgrid[0:height, 0:width].astype(np.float64)
+    else:
+        _check_calibration(calibration, sensor_size)
+        xu, yu = calibration.undistortion_map(normalized=False)
+    phase = (xu.astype(np.float64)[..., None] * A[0] + yu.astype(np.float64)[..., None] * A[1])
+    return np.exp(1j * phase / cfg.xy_scale_px).astype(np.complex64)
+
+
+def _check_calibration(calibration: "Calibration", sensor_size: tuple[int, int]) -> None:
+    if tuple(calibration.sensor_size) != (int(sensor_size[0]), int(sensor_size[1])):
+        raise EventDataError(
+            f"calibration is for a {calibration.sensor_size[0]}x{calibration.sensor_size[1]} sensor, "
+            f"the events are from a {sensor_size[0]}x{sensor_size[1]} sensor"
+        )
+
+
+def _check_matrix(matrix: np.ndarray, cfg: EncodingConfig) -> np.ndarray:
+    matrix = np.asarray(matrix, dtype=np.float64)
+    if matrix.shape != (3, cfg.d):
+        raise ConfigError(f"encoding matrix has shape {matrix.shape}, expected (3, {cfg.d})")
+    return matrix
+
+
+def time_phase_tables(
+    cfg: EncodingConfig, span_us: int, matrix: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Exact factorisation of ``exp(i a_t dt / t_scale_us)`` for integer ``0 <= dt <= span_us``.
+
+    Returns complex64 tables ``hi`` ``(span_us >> 10) + 1, d)`` and ``lo`` ``(1024, d)`` with
+    ``exp(i a_t dt / t_scale_us) = hi[dt >> 10] * lo[dt & 1023]``.
+    """
+    A = encoding_matrix(cfg) if matrix is None else _check_matrix(matrix, cfg)
+    a_t = A[2] / cfg.t_scale_us
+    n_hi = (int(span_us) >> _LO_BITS) + 1
+    hi = np.exp(1j * np.outer(np.arange(n_hi, dtype=np.float64) * _LO_SIZE, a_t))
+    lo = np.exp(1j * np.outer(np.arange(_LO_SIZE, dtype=np.float64), a_t))
+    return hi.astype(np.complex64), lo.astype(np.complex64)
+
+
+def _validate_targets(targets: np.ndarray, n_events: int) -> np.ndarray:
+    targets = np.asarray(targets)
+    if targets.ndim != 1 or not (np.issubdtype(targets.dtype, np.integer) or len(targets) == 0):
+        raise EventDataError(f"targets must be a 1-D integer array of event positions, got {targets.dtype} {targets.shape}")
+    targets = targets.astype(np.int64, copy=False)
+    if len(targets) and (targets.min() < 0 or targets.max() >= n_events):
+        bad = int(targets[(targets < 0) | (targets >= n_events)][0])
+        raise EventDataError(f"targets: position {bad} is outside the {n_events} events of the slice")
+    return targets
+
+
+def encode_targets(
+    events: np.ndarray,
+    targets: np.ndarray,
+    sensor_size: tuple[int, int],
+    cfg: EncodingConfig,
+    calibration: "Calibration | None" = None,
+    phase_xy: np.ndarray | None = None,
+    matrix: np.ndarray | None = None,
+) -> np.ndarray:
+    """VecKM-style features of the target events of one slice.
+
+    Args:
+        events: the slice, :data:`~evseg.events.EVENT_DTYPE` ``(N,)``, sorted by ``t`` (us);
+            every event is a potential neighbour.
+        targets: int ``(T,)`` positions in ``events`` of the events to encode.
+        sensor_size: ``(width, height)`` px.
+        cfg: encoding constants.
+        calibration: optional; positions then are undistorted pixel coordinates (module doc).
+        phase_xy: optional precomputed :func:`spatial_phase` ``(H, W, d)`` (saves its cost).
+        matrix: optional ``(3, d)`` random matrix overriding :func:`encoding_matrix` (an ONNX
+            model stores its own, so it does not depend on numpy's generator staying the same).
+
+    Returns:
+        float32 ``(T, 2 d + 1)``: ``[Re G, Im G]`` rescaled to norm ``sqrt(d)``, ``log(1 + n)``.
+    """
+    import numba
+
+    from evseg.veckm_flow import _kernels
+
+    targets = _validate_targets(targets, len(events))
+    width, height = int(sensor_size[0]), int(sensor_size[1])
+    if phase_xy is None:
+        phase_xy = spatial_phase(cfg, sensor_size, calibration, matrix)
+    elif phase_xy.shape != (height, width, cfg.d):
+        raise EventDataError(f"phase_xy has shape {phase_xy.shape}, expected {(height, width, cfg.d)}")
+    if len(targets) == 0:
+        return np.zeros((0, cfg.n_features), np.float32)
+    x = events["x"]
+    y = events["y"]
+    if int(x.max()) >= width or int(y.max()) >= height:
+        raise EventDataError(f"events lie outside the {width}x{height} sensor")
+    t = events["t"]
+    t0 = int(t.min())
+    dt = t - t0  # int64 us, exact
+    hi, lo = time_phase_tables(cfg, int(dt.max()), matrix)
+    x = np.ascontiguousarray(x)
+    y = np.ascontiguousarray(y)
+    field, count, row_used = _workspace(height, width, cfg.d)
+    nblk = numba.get_num_threads()
+    _kernels.scatter(x, y, dt, hi, lo, _LO_BITS, field, count, row_used, nblk)
+    _kernels.row_pass(field, count, row_used, phase_xy, cfg.window_px)
+    _kernels.column_pass(field, count, row_used, nblk)
+    return _kernels.gather_targets(
+        x, y, dt, targets, field, count, phase_xy, hi, lo, _LO_BITS, cfg.window_px
+    )
+
+
+_WORKSPACE: dict = {}
+
+
+def _workspace(height: int, width: int, d: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Reused per-shape buffers: field (H, W, d) complex64 (no need to zero, see _kernels),
+    count (H, W) int32 and row flags (H,), zeroed here. Not thread-safe: one slice at a time
+    per process (the kernels themselves run multi-threaded)."""
+    key = (height, width, d)
+    if key not in _WORKSPACE:
+        _WORKSPACE.clear()  # keep one sensor's buffers only
+        _WORKSPACE[key] = (
+            np.empty((height, width, d), np.complex64),
+            np.empty((height, width), np.int32),
+            np.empty(height, np.bool_),
+        )
+    field, count, row_used = _WORKSPACE[key]
+    count.fill(0)
+    row_used.fill(False)
+    return field, count, row_used
+
+
+def encode_targets_reference(
+    events: np.ndarray,
+    targets: np.ndarray,
+    sensor_size: tuple[int, int],
+    cfg: EncodingConfig,
+    calibration: "Calibration | None" = None,
+) -> np.ndarray:
+    """Direct O(T x window) evaluation of the same features in float64 (slow; for tests).
+
+    Same arguments and output as :func:`encode_targets`.
+    """
+    targets = _validate_targets(targets, len(events))
+    A = encoding_matrix(cfg)
+    k = cfg.window_px
+    x = events["x"].astype(np.int64)
+    y = events["y"].astype(np.int64)
+    t = (events["t"] - events["t"].min()).astype(np.float64)
+    if calibration is not None:
+        xu, yu = calibration.undistortion_map(normalized=False)
+        px, py = xu[y, x].astype(np.float64), yu[y, x].astype(np.float64)
+    else:
+        px, py = x.astype(np.float64), y.astype(np.float64)
+    P = np.stack([px / cfg.xy_scale_px, py / cfg.xy_scale_px, t / cfg.t_scale_us], axis=1)
+    out = np.zeros((len(targets), cfg.n_features), np.float64)
+    for r, i in enumerate(targets):
+        nb = (np.abs(x - x[i]) <= k) & (np.abs(y - y[i]) <= k)
+        G = np.exp(1j * (P[nb] - P[i]) @ A).sum(axis=0)
+        G = G * np.sqrt(cfg.d) / max(np.linalg.norm(G), 1e-12)
+        out[r, : cfg.d], out[r, cfg.d : 2 * cfg.d] = G.real, G.imag
+        out[r, -1] = np.log1p(nb.sum())
+    return out.astype(np.float32)
+
+
+def undistorted_to_sensor_flow(
+    nx: np.ndarray, ny: np.ndarray, x: np.ndarray, y: np.ndarray, calibration: "Calibration"
+) -> tuple[np.ndarray, np.ndarray]:
+    """Map normal flow in undistorted px/s at raw pixels ``(x, y)`` to sensor-grid px/s.
+
+    Normal flow is ``n = g / |g|^2`` with ``g`` the time-surface gradient (s/px). ``g`` is a
+    covector: with ``M = d(undistorted)/d(raw)`` (finite differences of the undistortion map),
+    ``g_raw = M^T g_und``. Exact for the local linearisation of the distortion.
+
+    Args:
+        nx, ny: float ``(T,)`` normal flow, undistorted px/s.
+        x, y: int ``(T,)`` raw pixel column, row of each flow.
+
+    Returns:
+        ``(nx, ny)`` float32 ``(T,)`` in px/s of the raw sensor grid.
+    """
+    xu, yu = calibration.undistortion_map(normalized=False)
+    # np.gradient: axis 0 = rows (y), axis 1 = columns (x); one-sided at the border.
+    dxu_dy, dxu_dx = np.gradient(xu.astype(np.float64))
+    dyu_dy, dyu_dx = np.gradient(yu.astype(np.float64))
+    x = np.asarray(x, np.int64)
+    y = np.asarray(y, np.int64)
+    nx = np.asarray(nx, np.float64)
+    ny = np.asarray(ny, np.float64)
+    m2 = nx * nx + ny * ny
+    with np.errstate(divide="ignore", invalid="ignore"):
+        gx, gy = nx / m2, ny / m2
+        grx = dxu_dx[y, x] * gx + dyu_dx[y, x] * gy
+        gry = dxu_dy[y, x] * gx + dyu_dy[y, x] * gy
+        g2 = grx * grx + gry * gry
+        return (grx / g2).astype(np.float32), (gry / g2).astype(np.float32)

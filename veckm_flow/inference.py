@@ -1,0 +1,153 @@
+"""Normal flow with onnxruntime on CPU: encoder rebuilt from the ONNX file, no torch.
+
+The ONNX file (written by :func:`evseg.export.export_onnx`) holds the head, one input
+``features`` float32 ``(T, 2 d + 1)`` (T dynamic) and one output ``head_out`` float32 ``(T, 3)``
+(see :mod:`evseg.veckm_flow.result` for its units), and in its metadata (``metadata_props``):
+
+- ``evseg.format``: ``"evseg-normal-flow/1"``
+- ``evseg.encoding``: JSON of :class:`~evseg.veckm_flow.EncodingConfig`
+- ``evseg.matrix``: JSON ``(3, d)`` list of the random matrix (rows x, y, t)
+- ``evseg.flow_unit_px_s``: px/s of one head output unit (a check, derived from the encoding)
+- ``evseg.head``: JSON of the head's constructor arguments (informative)
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from evseg.errors import ModelError
+from evseg.events import validate_events
+from evseg.veckm_flow.encoding import (
+    EncodingConfig,
+    _validate_targets,
+    encode_targets,
+    spatial_phase,
+    undistorted_to_sensor_flow,
+)
+from evseg.veckm_flow.result import NormalFlow, head_output_to_flow
+
+if TYPE_CHECKING:  # pragma: no cover
+    from evseg.calibration import Calibration
+
+FORMAT = "evseg-normal-flow/1"
+DEFAULT_MODEL = Path(__file__).resolve().parent / "weights" / "normal_flow.onnx"
+
+
+def read_model_metadata(path: str | Path) -> tuple[EncodingConfig, np.ndarray, dict]:
+    """``(cfg, matrix (3, d) float64, all metadata)`` of an exported model (ModelError if not one)."""
+    path = Path(path)
+    meta = dict(_session(path, threads=1).get_modelmeta().custom_metadata_map)
+    cfg, matrix = _parse_metadata(path, meta)
+    return cfg, matrix, meta
+
+
+def _parse_metadata(path: Path, meta: dict) -> tuple[EncodingConfig, np.ndarray]:
+    if meta.get("evseg.format") != FORMAT:
+        raise ModelError(f"{path}: metadata 'evseg.format' is {meta.get('evseg.format')!r}, expected {FORMAT!r} (not an evseg normal-flow model?)")
+    for key in ("evseg.encoding", "evseg.matrix", "evseg.flow_unit_px_s"):
+        if key not in meta:
+            raise ModelError(f"{path}: metadata field '{key}' is missing")
+    try:
+        cfg = EncodingConfig.from_dict(json.loads(meta["evseg.encoding"]))
+        matrix = np.asarray(json.loads(meta["evseg.matrix"]), dtype=np.float64)
+        unit = float(meta["evseg.flow_unit_px_s"])
+    except (ValueError, TypeError) as exc:
+        raise ModelError(f"{path}: metadata field is malformed: {exc}") from None
+    if matrix.shape != (3, cfg.d):
+        raise ModelError(f"{path}: metadata 'evseg.matrix' has shape {matrix.shape}, expected (3, {cfg.d})")
+    if not np.isclose(unit, cfg.flow_unit_px_s, rtol=1e-9):
+        raise ModelError(f"{path}: metadata 'evseg.flow_unit_px_s' = {unit} disagrees with the encoding ({cfg.flow_unit_px_s})")
+    return cfg, matrix
+
+
+def _session(path: Path, threads: int | None):
+    import onnxruntime as ort
+
+    if not path.is_file():
+        raise ModelError(f"{path}: model file not found")
+    opts = ort.SessionOptions()
+    opts.intra_op_num_threads = 0 if threads is None else int(threads)  # 0 = onnxruntime's default
+    opts.inter_op_num_threads = 1
+    # No busy-waiting after a run: the encoder's numba threads run right after on the same cores.
+    opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
+    opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+    try:
+        return ort.InferenceSession(str(path), sess_options=opts, providers=["CPUExecutionProvider"])
+    except Exception as exc:  # onnxruntime raises its own exception types for corrupt files
+        raise ModelError(f"{path}: onnxruntime cannot load the model ({type(exc).__name__}: {exc})") from None
+
+
+class OnnxNormalFlow:
+    """Learned normal flow: VecKM-style encoding (numpy/numba) + head (onnxruntime, CPU).
+
+    Args:
+        model_path: an exported ``.onnx`` (default: the model shipped in
+            ``evseg/veckm_flow/weights/normal_flow.onnx``).
+        threads: onnxruntime intra-op threads (None: onnxruntime's default, all cores). The
+            encoder's numba threads follow ``NUMBA_NUM_THREADS`` / ``numba.set_num_threads``.
+
+    Call: ``est(events, sensor_size, targets=None, calibration=None) -> NormalFlow``.
+    """
+
+    def __init__(self, model_path: str | Path | None = None, threads: int | None = None) -> None:
+        path = Path(model_path) if model_path is not None else DEFAULT_MODEL
+        if model_path is None and not path.is_file():
+            raise ModelError(f"{path}: no shipped default model in this build; pass a model_path (evseg export)")
+        self.model_path = path
+        self.session = _session(path, threads)
+        meta = self.session.get_modelmeta().custom_metadata_map
+        self.cfg, self.matrix = _parse_metadata(path, meta)
+        self.metadata = dict(meta)
+        self._input = self.session.get_inputs()[0].name
+        self._phase_cache: dict = {}
+        self.last_timing_s: dict[str, float] = {}
+
+    def _phase(self, sensor_size: tuple[int, int], calibration: "Calibration | None") -> np.ndarray:
+        key = (int(sensor_size[0]), int(sensor_size[1]), id(calibration))
+        if key not in self._phase_cache:
+            self._phase_cache.clear()  # one sensor / calibration at a time
+            # Keep a reference to the calibration so that its id stays unique while cached.
+            self._phase_cache[key] = (spatial_phase(self.cfg, sensor_size, calibration, self.matrix), calibration)
+        return self._phase_cache[key][0]
+
+    def encode(self, events: np.ndarray, sensor_size, targets: np.ndarray, calibration=None) -> np.ndarray:
+        """Features float32 ``(T, 2 d + 1)`` of the targets (see :func:`encode_targets`)."""
+        return encode_targets(
+            events, targets, sensor_size, self.cfg, calibration, self._phase(sensor_size, calibration), self.matrix
+        )
+
+    def predict(self, feats: np.ndarray) -> np.ndarray:
+        """Raw head output float32 ``(T, 3)`` for features ``(T, F)``."""
+        if len(feats) == 0:
+            return np.zeros((0, 3), np.float32)
+        return self.session.run(None, {self._input: np.ascontiguousarray(feats, dtype=np.float32)})[0]
+
+    def __call__(
+        self,
+        events: np.ndarray,
+        sensor_size: tuple[int, int],
+        targets: np.ndarray | None = None,
+        calibration: "Calibration | None" = None,
+    ) -> NormalFlow:
+        """Normal flow (px/s of the sensor grid) of ``targets`` (default: every event) of the
+        slice ``events``; every event of the slice is a potential neighbour.
+        ``last_timing_s`` then holds the seconds spent in ``encode`` and ``network``."""
+        validate_events(events, sensor_size, source="normal flow input")
+        if targets is None:
+            targets = np.arange(len(events), dtype=np.int64)
+        targets = _validate_targets(targets, len(events))
+        t0 = time.perf_counter()
+        feats = self.encode(events, sensor_size, targets, calibration)
+        t1 = time.perf_counter()
+        out = self.predict(feats)
+        t2 = time.perf_counter()
+        self.last_timing_s = {"encode": t1 - t0, "network": t2 - t1}
+        nx, ny, unc = head_output_to_flow(out, self.cfg)
+        if calibration is not None:
+            nx, ny = undistorted_to_sensor_flow(nx, ny, events["x"][targets], events["y"][targets], calibration)
+        return NormalFlow(targets, nx, ny, unc)
