@@ -1,0 +1,100 @@
+"""Saving and loading simulated recordings (one ``.npz``).
+
+Layout (all plain arrays, readable without evseg): ``events`` (structured array of
+:data:`~evseg.events.EVENT_DTYPE`, so evseg's npz reader reads the file as an ordinary recording),
+``label`` int16 (N,), ``flow`` and ``normal_flow`` float32 (N, 2) px/s, ``object_ids`` int32,
+``sensor_size`` (width, height), ``seed``, ``duration_us``, ``scene_config`` (JSON text) and
+``format`` (``"evseg-sim-1"``). Masks and boxes are not stored: they are re-rendered exactly
+from the scene config, seed and duration.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from evseg.errors import FormatError
+from evseg.events import EVENT_DTYPE, EventStream, validate_events
+from evseg.simulator.recording import SimulatedRecording
+from evseg.simulator.scene import scene_from_dict, scene_to_json
+
+FORMAT = "evseg-sim-1"
+_KEYS = ("events", "label", "flow", "normal_flow", "object_ids", "sensor_size", "seed", "duration_us", "scene_config", "format")
+
+
+def save_recording(rec: SimulatedRecording, path: str | Path) -> Path:
+    """Write ``rec`` to ``path`` (.npz, compressed) atomically: a temporary file in the same
+    folder is renamed over the target, so a crash never leaves a half-written file."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            np.savez_compressed(
+                fh,
+                events=rec.stream.events,
+                label=rec.label,
+                flow=rec.flow,
+                normal_flow=rec.normal_flow,
+                object_ids=np.asarray(rec.object_ids, np.int32),
+                sensor_size=np.asarray(rec.stream.sensor_size, np.int64),
+                seed=np.int64(rec.seed),
+                duration_us=np.int64(rec.duration_us),
+                scene_config=np.array(scene_to_json(rec.config)),
+                format=np.array(FORMAT),
+            )
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def load_recording(path: str | Path) -> SimulatedRecording:
+    """Read a file written by :func:`save_recording`; FormatError naming the file and the
+    missing or malformed entry otherwise."""
+    path = Path(path)
+    try:
+        data = np.load(path, allow_pickle=False)
+    except FileNotFoundError:
+        raise FormatError(f"{path}: no such file") from None
+    except (OSError, ValueError, zipfile.BadZipFile) as exc:
+        raise FormatError(f"{path}: not a readable .npz file ({exc})") from None
+    with data:
+        if not isinstance(data, np.lib.npyio.NpzFile):
+            raise FormatError(f"{path}: expected an .npz archive of a simulated recording")
+        missing = [k for k in _KEYS if k not in data.files]
+        if missing:
+            raise FormatError(f"{path}: not a simulated recording: entry '{missing[0]}' is missing")
+        try:
+            arrays = {k: data[k] for k in _KEYS}
+        except (ValueError, OSError, zipfile.BadZipFile, EOFError) as exc:
+            raise FormatError(f"{path}: corrupt entry ({exc})") from None
+    if str(arrays["format"]) != FORMAT:
+        raise FormatError(f"{path}: entry 'format' is {str(arrays['format'])!r}, expected {FORMAT!r}")
+    events = arrays["events"]
+    n = len(events)
+    validate_events(events, tuple(int(v) for v in arrays["sensor_size"]), source=f"{path}: events")
+    for k, shape, dtype in (("label", (n,), np.int16), ("flow", (n, 2), np.float32), ("normal_flow", (n, 2), np.float32)):
+        if arrays[k].shape != shape or arrays[k].dtype != dtype:
+            raise FormatError(f"{path}: entry '{k}' has shape {arrays[k].shape} {arrays[k].dtype}, expected {shape} {np.dtype(dtype)}")
+    try:
+        cfg = scene_from_dict(json.loads(str(arrays["scene_config"])), source=f"{path}: scene_config")
+    except json.JSONDecodeError as exc:
+        raise FormatError(f"{path}: entry 'scene_config' is not valid JSON ({exc.msg} at position {exc.pos})") from None
+    w, h = (int(v) for v in arrays["sensor_size"])
+    return SimulatedRecording(
+        stream=EventStream(events.astype(EVENT_DTYPE, copy=False), (w, h)),
+        label=arrays["label"],
+        flow=arrays["flow"],
+        normal_flow=arrays["normal_flow"],
+        object_ids=[int(i) for i in arrays["object_ids"]],
+        config=cfg,
+        seed=int(arrays["seed"]),
+        duration_us=int(arrays["duration_us"]),
+    )

@@ -1,0 +1,141 @@
+"""Pictures of events, labels and flow for previews and overlays.
+
+Every function takes numpy arrays and returns a **uint8 (H, W, 3) RGB** image (convert with
+``img[..., ::-1]`` before ``cv2.imwrite``, which expects BGR; :func:`save_rgb` does it). Pixel
+coordinates follow the event model: x = column, y = row, row 0 at the top. Flow colours: hue =
+direction (0 deg = +x / right = red, 90 deg = +y / down, going red -> yellow -> green -> cyan ->
+blue -> magenta), value = magnitude relative to ``max_px_s`` (black = still, saturating beyond).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+WHITE = (255, 255, 255)
+ON_RGB = (220, 40, 40)
+"""Colour of ON (+1) events: red."""
+OFF_RGB = (40, 80, 230)
+"""Colour of OFF (-1) events: blue."""
+NOISE_RGB = (128, 128, 128)
+BACKGROUND_RGB = (200, 200, 200)
+
+
+def label_palette(n: int) -> np.ndarray:
+    """uint8 (n, 3) RGB colours for object labels 1..n (golden-angle hues: neighbours differ)."""
+    hue = (np.arange(n) * 0.618033988749895 * 180) % 180
+    hsv = np.stack([hue, np.full(n, 230), np.full(n, 235)], -1).astype(np.uint8)[None]
+    return cv2.cvtColor(hsv, cv2.COLOR_HSV2RGB)[0]
+
+
+def flow_to_rgb(nx: np.ndarray, ny: np.ndarray, max_px_s: float) -> np.ndarray:
+    """Colour-code flow vectors (any equal shapes, px/s): uint8 (*shape, 3) RGB.
+
+    Hue = direction of (nx, ny) in image coordinates (y down), value = min(1, |n| / max_px_s),
+    full saturation. NaN vectors become black (as a still pixel would)."""
+    nx = np.asarray(nx, np.float64)
+    ny = np.asarray(ny, np.float64)
+    shape = nx.shape
+    ang = np.degrees(np.arctan2(ny, nx)) % 360.0
+    mag = np.hypot(nx, ny)
+    val = np.clip(np.nan_to_num(mag / max(max_px_s, 1e-12)), 0, 1)
+    hsv = np.stack([np.nan_to_num(ang) / 2.0, np.full(shape, 255.0), val * 255.0], -1)
+    flat = np.round(hsv).astype(np.uint8).reshape(1, -1, 3)
+    return cv2.cvtColor(flat, cv2.COLOR_HSV2RGB).reshape(*shape, 3)
+
+
+def color_wheel_legend(size: int = 96, max_px_s: float | None = None) -> np.ndarray:
+    """uint8 (size, size, 3) RGB disc showing the colour of each flow direction/magnitude (the
+    rim = ``max_px_s``), white outside the disc, with the magnitude written below the centre
+    when ``max_px_s`` is given."""
+    r = (size - 1) / 2.0
+    yy, xx = np.mgrid[0:size, 0:size].astype(np.float64)
+    dx, dy = (xx - r) / r, (yy - r) / r
+    img = flow_to_rgb(dx, dy, 1.0)
+    img[np.hypot(dx, dy) > 1.0] = WHITE
+    if max_px_s is not None:
+        text = f"{max_px_s:g} px/s"
+        cv2.putText(img, text, (2, size - 3), cv2.FONT_HERSHEY_SIMPLEX, 0.3, (0, 0, 0), 1, cv2.LINE_AA)
+    return img
+
+
+def events_to_image(x: np.ndarray, y: np.ndarray, p: np.ndarray, sensor_size: tuple[int, int]) -> np.ndarray:
+    """Event image: white background, pixel coloured by the sign of its summed polarity (red =
+    ON, blue = OFF). ``sensor_size = (width, height)``; returns uint8 (height, width, 3) RGB."""
+    w, h = sensor_size
+    acc = np.zeros(h * w, np.int32)
+    np.add.at(acc, np.asarray(y, np.int64) * w + np.asarray(x, np.int64), np.asarray(p, np.int32))
+    img = np.full((h * w, 3), 255, np.uint8)
+    img[acc > 0] = ON_RGB
+    img[acc < 0] = OFF_RGB
+    return img.reshape(h, w, 3)
+
+
+def labels_to_image(x: np.ndarray, y: np.ndarray, labels: np.ndarray, sensor_size: tuple[int, int]) -> np.ndarray:
+    """Per-event labels drawn at their pixels (the last event of a pixel wins): white where no
+    event, light grey for 0 (background), grey for -1 (noise), a palette colour for k >= 1.
+    Returns uint8 (height, width, 3) RGB."""
+    w, h = sensor_size
+    labels = np.asarray(labels, np.int64)
+    n_obj = int(labels.max(initial=0))
+    colours = np.vstack([np.array([NOISE_RGB, BACKGROUND_RGB], np.uint8), label_palette(max(n_obj, 1))])
+    img = np.full((h * w, 3), 255, np.uint8)
+    img[np.asarray(y, np.int64) * w + np.asarray(x, np.int64)] = colours[labels + 1]
+    return img.reshape(h, w, 3)
+
+
+def flow_events_to_image(x, y, flow: np.ndarray, sensor_size: tuple[int, int], max_px_s: float) -> np.ndarray:
+    """Per-event flow vectors (N, 2) px/s drawn at their pixels with :func:`flow_to_rgb`
+    (last event of a pixel wins; NaN flows are skipped); white where no event.
+    Returns uint8 (height, width, 3) RGB."""
+    w, h = sensor_size
+    flow = np.asarray(flow)
+    ok = np.isfinite(flow).all(1)
+    img = np.full((h * w, 3), 255, np.uint8)
+    idx = np.asarray(y, np.int64)[ok] * w + np.asarray(x, np.int64)[ok]
+    img[idx] = flow_to_rgb(flow[ok, 0], flow[ok, 1], max_px_s)
+    return img.reshape(h, w, 3)
+
+
+def mask_outline(img: np.ndarray, mask: np.ndarray, rgb: tuple[int, int, int]) -> np.ndarray:
+    """Copy of ``img`` (H, W, 3) with the outline of bool ``mask`` (H, W) drawn in ``rgb``."""
+    out = img.copy()
+    m = mask.astype(np.uint8)
+    edge = m - cv2.erode(m, np.ones((3, 3), np.uint8))
+    out[edge > 0] = rgb
+    return out
+
+
+def titled(img: np.ndarray, title: str, scale: int = 1) -> np.ndarray:
+    """``img`` enlarged ``scale`` times (nearest neighbour) with a white title bar on top."""
+    if scale > 1:
+        img = cv2.resize(img, (img.shape[1] * scale, img.shape[0] * scale), interpolation=cv2.INTER_NEAREST)
+    bar = np.full((18, img.shape[1], 3), 255, np.uint8)
+    cv2.putText(bar, title, (3, 13), cv2.FONT_HERSHEY_SIMPLEX, 0.42, (0, 0, 0), 1, cv2.LINE_AA)
+    return np.vstack([bar, img])
+
+
+def hstack_padded(images: list[np.ndarray], gap: int = 6) -> np.ndarray:
+    """Place RGB images side by side, top-aligned, on white, ``gap`` px apart."""
+    h = max(i.shape[0] for i in images)
+    cols = []
+    for k, im in enumerate(images):
+        pad = np.full((h - im.shape[0], im.shape[1], 3), 255, np.uint8)
+        cols.append(np.vstack([im, pad]))
+        if k < len(images) - 1:
+            cols.append(np.full((h, gap, 3), 255, np.uint8))
+    return np.hstack(cols)
+
+
+def save_rgb(path: str | Path, img: np.ndarray) -> None:
+    """Write an RGB uint8 image (PNG/JPEG by extension) atomically."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    ok, buf = cv2.imencode(path.suffix or ".png", np.ascontiguousarray(img[..., ::-1]))
+    if not ok:
+        raise ValueError(f"cannot encode image as {path.suffix}")
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_bytes(buf.tobytes())
+    tmp.replace(path)
