@@ -123,7 +123,9 @@ def detect_format(path: str | Path) -> str:
                 "(format=...) to read it as such"
             )
         return by_magic
-    if by_suffix and by_suffix != ["text"]:
+    if by_suffix == ["text"]:
+        return "text"  # no magic: the text reader reports bad content with its line number
+    if by_suffix:
         spec = FORMATS[by_suffix[0]]
         raise FormatError(
             f"{path}: not a valid {'/'.join(by_suffix)} file: bad magic bytes at offset 0 "
