@@ -18,6 +18,11 @@ from evseg.events import EVENT_DTYPE
 from evseg.io.recording import Chunk
 
 
+def _reraise_interrupts(exc: BaseException) -> None:
+    if isinstance(exc, (KeyboardInterrupt, SystemExit, GeneratorExit)):
+        raise exc
+
+
 class Aedat4Source:
     format = "aedat4"
 
@@ -44,7 +49,8 @@ class Aedat4Source:
 
         try:
             return aedat.Decoder(str(self.path))
-        except Exception as exc:  # aedat raises plain RuntimeError/OSError for bad files
+        except BaseException as exc:  # RuntimeError/OSError, or a Rust panic (a BaseException)
+            _reraise_interrupts(exc)
             raise FormatError(f"{self._where}: not a readable AEDAT4 file ({exc})") from None
 
     def _event_packets(self) -> Iterator[np.ndarray]:
@@ -54,7 +60,8 @@ class Aedat4Source:
                 packet = next(it)
             except StopIteration:
                 return
-            except Exception as exc:
+            except BaseException as exc:  # see _decoder
+                _reraise_interrupts(exc)
                 raise FormatError(f"{self._where}: corrupt or truncated packet ({exc})") from None
             if packet.get("stream_id") == self._stream_id and "events" in packet:
                 yield packet["events"]

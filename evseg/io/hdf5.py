@@ -49,9 +49,12 @@ class H5Source:
             raise FormatError(f"{where}: corrupt or truncated HDF5 file ({exc})") from None
         try:
             self._open(where)
-        except Exception:
-            self._f.close()
+        except FormatError:
+            self.close()
             raise
+        except Exception as exc:  # h5py maps damaged metadata to KeyError, OSError, RuntimeError...
+            self.close()
+            raise FormatError(f"{where}: corrupt HDF5 structure ({type(exc).__name__}: {exc})") from None
 
     def _open(self, where: str) -> None:
         f = self._f
@@ -90,8 +93,10 @@ class H5Source:
             j = min(self._n, i + chunk_events)
             try:
                 cols = {k: d[i:j] for k, d in self._ds.items()}
-            except (OSError, ValueError) as exc:
-                raise FormatError(f"{self._where}: cannot read events {i}..{j - 1} (corrupt data: {exc})") from None
+            except Exception as exc:  # damaged chunks surface as OSError, ValueError, KeyError...
+                raise FormatError(
+                    f"{self._where}: cannot read events {i}..{j - 1} (corrupt data: {type(exc).__name__}: {exc})"
+                ) from None
             yield Chunk(columns_to_events(cols["t"], cols["x"], cols["y"], cols["p"], self._where, i))
 
     def close(self) -> None:

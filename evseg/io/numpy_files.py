@@ -175,11 +175,11 @@ def _load_npy(path: Path, where: str) -> np.ndarray:
         return np.load(path, mmap_mode="r", allow_pickle=False)
     except ValueError as exc:
         msg = str(exc)
-        if "allow_pickle" in msg or "Object arrays" in msg:
+        if "allow_pickle" in msg or "Object arrays" in msg or "Python objects" in msg:
             raise FormatError(f"{where}: holds Python objects (pickles), which evseg does not load") from None
         raise FormatError(f"{where}: corrupt .npy header or truncated data ({msg})") from None
-    except (OSError, EOFError) as exc:
-        raise FormatError(f"{where}: corrupt or truncated .npy ({exc})") from None
+    except Exception as exc:  # np.load's header parser raises many types (TokenError, SyntaxError, ...)
+        raise FormatError(f"{where}: corrupt or truncated .npy ({type(exc).__name__}: {exc})") from None
 
 
 def _npz_member(z, key: str, where: str) -> np.ndarray:
@@ -189,15 +189,15 @@ def _npz_member(z, key: str, where: str) -> np.ndarray:
         if "allow_pickle" in str(exc):
             raise FormatError(f"{where}: key '{key}' holds Python objects (pickles), not loaded") from None
         raise FormatError(f"{where}: key '{key}' is corrupt or truncated ({exc})") from None
-    except (OSError, EOFError, zipfile.BadZipFile, KeyError) as exc:
-        raise FormatError(f"{where}: key '{key}' is corrupt or truncated ({exc})") from None
+    except Exception as exc:  # zip and npy parsers raise many types (BadZipFile, zlib.error, ...)
+        raise FormatError(f"{where}: key '{key}' is corrupt or truncated ({type(exc).__name__}: {exc})") from None
 
 
 def _open_npz(path: Path, where: str) -> ArraySource:
     try:
         z = np.load(path, allow_pickle=False)
-    except (zipfile.BadZipFile, ValueError, OSError, EOFError) as exc:
-        raise FormatError(f"{where}: not a readable zip archive ({exc})") from None
+    except Exception as exc:  # BadZipFile, ValueError, OSError, EOFError, ...
+        raise FormatError(f"{where}: not a readable zip archive ({type(exc).__name__}: {exc})") from None
     with z:
         keys = list(z.keys())
         sensor_size = None

@@ -74,3 +74,31 @@ def text_lines(ev: np.ndarray, size=(64, 48)) -> str:
     lines = [f"{size[0]} {size[1]}"] if size else []
     lines += [f"{int(e['t']) / 1e6:.6f} {e['x']} {e['y']} {1 if e['p'] > 0 else 0}" for e in ev]
     return "\n".join(lines) + "\n"
+
+
+def write_bag(path, topics: dict[str, list[np.ndarray]], t0_ns: int = 1_519_939_282_250_708_000,
+              extra_topic: bool = True, width: int = 64, height: int = 48) -> None:
+    """One EventArray message per array, per topic; times = t0 + event t (us)."""
+    from rosbags.rosbag1 import Writer
+
+    from evseg.io.rosbag import EVENT_ARRAY, dvs_typestore
+
+    store = dvs_typestore()
+    Time = store.types["builtin_interfaces/msg/Time"]
+    Header = store.types["std_msgs/msg/Header"]
+    Event = store.types["dvs_msgs/msg/Event"]
+    EventArray = store.types[EVENT_ARRAY]
+    with Writer(path) as w:
+        if extra_topic:
+            conn = w.add_connection("/chatter", "std_msgs/msg/String", typestore=store)
+            w.write(conn, t0_ns, store.serialize_ros1(store.types["std_msgs/msg/String"]("hi"), "std_msgs/msg/String"))
+        for topic, msgs in topics.items():
+            conn = w.add_connection(topic, EVENT_ARRAY, typestore=store)
+            for seq, ev in enumerate(msgs):
+                events = []
+                for e in ev:
+                    ns = t0_ns + int(e["t"]) * 1000
+                    events.append(Event(int(e["x"]), int(e["y"]), Time(ns // 10**9, ns % 10**9), bool(e["p"] > 0)))
+                stamp_ns = t0_ns + int(ev["t"][-1]) * 1000 if len(ev) else t0_ns
+                msg = EventArray(Header(seq, Time(stamp_ns // 10**9, stamp_ns % 10**9), "cam"), height, width, events)
+                w.write(conn, stamp_ns, store.serialize_ros1(msg, EVENT_ARRAY))

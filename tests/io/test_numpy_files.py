@@ -1,0 +1,99 @@
+"""numpy readers (.npy / .npz layouts, field-name variants, calibration) and the npz writer."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from evfiles import sample_events
+from evseg.calibration import Calibration
+from evseg.errors import FormatError
+from evseg.events import EventStream
+from evseg.io import read_events, write_npz
+
+
+def test_structured_npy_with_field_variants(tmp_path):
+    ev = sample_events(30)
+    a = np.empty(30, dtype=[("timestamp", "<u8"), ("x", "<u2"), ("y", "<u2"), ("pol", "u1")])
+    a["timestamp"], a["x"], a["y"], a["pol"] = ev["t"], ev["x"], ev["y"], ev["p"] > 0
+    np.save(tmp_path / "a.npy", a)
+    np.testing.assert_array_equal(read_events(tmp_path / "a.npy").events, ev)
+
+
+def test_nx4_float_seconds_layout(tmp_path):
+    ev = sample_events(20)
+    a = np.stack([ev["t"] / 1e6, ev["x"], ev["y"], (ev["p"] > 0)], axis=1)
+    np.save(tmp_path / "b.npy", a)
+    np.testing.assert_array_equal(read_events(tmp_path / "b.npy").events, ev)
+
+
+def test_npz_column_keys_extra_keys_ignored(tmp_path):
+    ev = sample_events(20)
+    np.savez(tmp_path / "c.npz", x=ev["x"], y=ev["y"], ts=ev["t"], polarity=ev["p"],
+             notes=np.arange(3), width=100, height=90)
+    s = read_events(tmp_path / "c.npz")
+    assert s.sensor_size == (100, 90)
+    np.testing.assert_array_equal(s.events, ev)
+
+
+def test_npz_nan_names_event_index(tmp_path):
+    a = np.zeros((5, 4), dtype=np.float32)
+    a[3, 2] = np.nan
+    np.savez(tmp_path / "n.npz", events=a)
+    with pytest.raises(FormatError, match=r"n.npz: npz: field 'y' is nan \(not finite\) at event 3"):
+        read_events(tmp_path / "n.npz")
+
+
+def test_pickled_objects_are_refused(tmp_path):
+    np.save(tmp_path / "o.npy", np.array([{"a": 1}], dtype=object), allow_pickle=True)
+    with pytest.raises(FormatError, match="pickles"):
+        read_events(tmp_path / "o.npy")
+
+
+def test_missing_fields_are_listed(tmp_path):
+    np.save(tmp_path / "m.npy", np.zeros(3, dtype=[("x", "u2"), ("y", "u2"), ("t", "i8")]))
+    with pytest.raises(FormatError, match=r"lacks \['p'\]"):
+        read_events(tmp_path / "m.npy")
+
+
+def test_write_npz_round_trip_with_calibration(tmp_path):
+    K = np.array([[200.0, 0, 120], [0, 199, 90], [0, 0, 1]])
+    cal = Calibration(K, np.array([-0.3, 0.1, 1e-4, -2e-4]), (240, 180))
+    stream = EventStream(sample_events(1000, width=240, height=180), (240, 180), 123_456_789, cal)
+    p = write_npz(stream, tmp_path / "out.npz")
+    assert sorted(p.parent.iterdir()) == [p]  # the temporary file is gone
+    back = read_events(p)
+    np.testing.assert_array_equal(back.events, stream.events)
+    assert back.sensor_size == (240, 180) and back.t_offset_us == 123_456_789
+    np.testing.assert_array_equal(back.calibration.K, K)
+    np.testing.assert_array_equal(back.calibration.D, cal.D)
+
+
+def test_failed_write_leaves_no_file(tmp_path):
+    class Boom(Exception):
+        pass
+
+    def chunks():
+        yield sample_events(5)
+        raise Boom
+
+    from evseg.io.numpy_files import write_npz_chunks
+
+    with pytest.raises(Boom):
+        write_npz_chunks(chunks(), tmp_path / "x.npz", lambda: ((64, 48), 0, None))
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_real_ecd_poster_with_calibration(shared_data):
+    s = read_events(shared_data / "ecd_poster" / "poster_translation.npz")
+    assert len(s) == 100_000 and s.sensor_size == (240, 180)
+    raw = np.load(shared_data / "ecd_poster" / "poster_translation.npz")
+    np.testing.assert_array_equal(s.events["t"], np.rint(raw["events"][:, 0].astype(np.float64) * 1e6))
+    np.testing.assert_allclose(s.calibration.K[0, 0], 199.092, atol=1e-3)  # README's fx, 3 decimals
+    assert s.calibration.D.shape == (4,)
+
+
+def test_real_eed_npy_titled_field(shared_data):
+    s = read_events(shared_data / "eed_what_is_background" / "events_t_us_x_y_on.npy")
+    assert len(s) == 271_264 and s.sensor_size == (190, 180)
+    assert 0.49 < float((s.events["p"] > 0).mean()) < 0.51  # README: 49.8 % ON
