@@ -1,0 +1,234 @@
+"""SegmentationConfig: every parameter of the segmentation, with units, and YAML loading.
+
+The energy minimised per window (paper Eq. 10, method.md section 4) is
+
+    E(L, M) = sum_k c_k * min((r_k / sigma)^2, tau^2)            data term
+            + lambda_p * sum_{(i,j) in Delaunay} w_ij [L_i != L_j]  Potts smoothness
+            + lambda_m * (number of labels in use)                  label cost
+
+with r_k the |n|-normalised normal-flow residual in px/s (see :mod:`.motion_model`), sigma the
+residual scale (px/s), tau the truncation (in units of sigma), c_k a per-node confidence from
+the optional flow uncertainty and w_ij an optional distance weight of the graph edge. Data
+costs are dimensionless (squared residuals in units of sigma), so lambda_p and lambda_m are
+too: lambda_m is "how many sigma^2 of fitting error a new motion must save to exist".
+
+Presets live in ``configs/segmentation/*.yaml`` (``eed_like``, ``evimo_like``,
+``outdoor_like``); :func:`load_segmentation_config` reads a preset name or a YAML path and
+rejects unknown keys with :class:`evseg.errors.ConfigError`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from pathlib import Path
+
+from evseg.errors import ConfigError
+
+_PRESET_DIR = Path(__file__).resolve().parents[1] / "configs" / "segmentation"
+
+ROBUST_LOSSES = ("none", "huber", "cauchy", "truncated")
+MASK_METHODS = ("hull", "dilate")
+POTTS_WEIGHTINGS = ("uniform", "distance")
+SAMPLING_FLOWS = ("local", "normal")
+
+
+@dataclass(frozen=True)
+class SegmentationConfig:
+    """All parameters of :func:`evseg.segmentation.segment_normal_flow` (units in comments).
+
+    The defaults work without tuning on the simulated scene families (oracle flow) and are
+    scale free where possible: the residual scale follows the median flow magnitude.
+    """
+
+    # --- pre-processing (nodes and graph) ---------------------------------------------
+    cell_px: float = 4.0
+    """Side of the square cell (px) that keeps one node; 4 px gives ~1.5 k nodes on a
+    346x260 sensor with dense edges. 0 keeps every flow (duplicate positions still merged)."""
+    node_window_us: int | None = None
+    """Only flows with t >= t_max - node_window_us become nodes (the latest slice of the
+    window); None uses every flow given."""
+    min_flow_px_s: float = 1.0
+    """Flows slower than this (px/s) carry no usable direction and are dropped."""
+    max_uncertainty: float | None = None
+    """Flows with uncertainty above this are dropped (VecKM_flow uses 0.3 rad); None keeps all."""
+    uncertainty_scale: float = 0.3
+    """Node confidence c = 1 / (1 + (uncertainty / uncertainty_scale)^2) (same unit as the
+    uncertainty); it weighs the node's data term and its fitting weight."""
+    origin_px: tuple[float, float] | None = None
+    """Origin (column, row) in px of the affine model's x; None = sensor centre
+    ((w-1)/2, (h-1)/2) when the sensor size is known, else (0, 0)."""
+
+    # --- data term ---------------------------------------------------------------------
+    residual_scale_px_s: float = 2.0
+    """Floor of the residual scale sigma (px/s)."""
+    residual_scale_rel: float = 0.08
+    """sigma = max(residual_scale_px_s, residual_scale_rel * median |n| of the nodes):
+    the residual scale follows the speed of the scene, so one setting serves slow indoor
+    and fast outdoor data."""
+    truncation: float = 3.0
+    """tau: a node's data cost saturates at tau^2 (residual beyond tau sigma = outlier)."""
+
+    # --- smoothness and label cost -----------------------------------------------------
+    lambda_p: float = 2.0
+    """Potts weight per cut Delaunay edge (in sigma^2 units of the data term)."""
+    potts_weighting: str = "distance"
+    """'uniform': every edge weighs 1; 'distance': w = min(1, edge_scale_px / length), so
+    long edges across empty space (between separate objects) are cheap to cut."""
+    edge_scale_px: float = 12.0
+    """Length (px) up to which a Delaunay edge has full Potts weight ('distance' weighting)."""
+    lambda_m: float = 60.0
+    """Label cost (Delong et al. 2012) paid once per motion model in use (sigma^2 units)."""
+
+    # --- optimisation ------------------------------------------------------------------
+    max_rounds: int = 8
+    """Maximum alternations of labeling (alpha-expansion) and fitting (LM)."""
+    expansion_cycles: int = 1
+    """Maximum sweeps over all labels in one labeling step (EMSGC uses 2; the alternation
+    sweeps again in the next round anyway, so 1 is as good and half the max-flows)."""
+    model_tol_px_s: float = 0.5
+    """The alternation stops when no model's flow changes by more than this (px/s, measured
+    over the sensor's half-diagonal) and the labeling is unchanged."""
+    merge_tol: float = 1.0
+    """Labels whose flow fields differ by less than merge_tol * sigma over the sensor are
+    merged after each fit (only when that lowers the energy); 0 disables."""
+    lm_iterations: int = 5
+    """Levenberg-Marquardt iterations per fitting step (all labels in one batch)."""
+    lm_damping: float = 1e-3
+    """Initial LM damping mu (relative to the diagonal of J^T W J)."""
+    robust_loss: str = "cauchy"
+    """IRLS weights of the fitter: 'none', 'huber', 'cauchy' or 'truncated' (at tau)."""
+    robust_scale: float = 1.0
+    """Scale of the robust loss in units of sigma (the Huber / Cauchy constant)."""
+    min_label_nodes: int = 4
+    """Labels with fewer nodes after a labeling step are dropped (too few to fit 4 params)."""
+
+    # --- initialization ----------------------------------------------------------------
+    n_sampled: int = 12
+    """Fast sampling: candidate models from distinct normal flows without prediction."""
+    n_sampled_with_prediction: int = 6
+    """Fast sampling: candidates when motion prediction supplied at least one candidate."""
+    sampling_flow: str = "local"
+    """Translation vector of a node for fast sampling: 'local' = least-squares translation of
+    its Delaunay 1-ring (resolves the aperture problem; see initialization.py), 'normal' = its
+    normal flow as such (the paper's wording)."""
+    sampling_bins: int = 12
+    """Fast sampling histogram: bins per axis over the flow vectors' range."""
+    min_candidate_separation: float = 0.15
+    """Sampled translations differ by at least this share of the flows' robust range."""
+    prediction_margin_px: float = 8.0
+    """Motion prediction: the box of an object is grown by this margin (px) each side."""
+    min_prediction_nodes: int = 8
+    """Motion prediction: a predicted box needs this many nodes to fit a candidate."""
+
+    # --- outputs -----------------------------------------------------------------------
+    min_object_nodes: int = 6
+    """Objects (IMOs) with fewer nodes are set to -1 (unassigned) in the result."""
+    mask_method: str = "hull"
+    """'hull': convex hull of the object's nodes, dilated by mask_dilate_px; 'dilate':
+    the object's nodes rasterised and dilated by cell_px/2 + mask_dilate_px, holes closed."""
+    mask_dilate_px: float = 2.0
+    """Extra growth (px) of the dense mask: nodes sit on edges, the silhouette a bit outside."""
+    max_propagation_px: float = 12.0
+    """propagate_labels gives -1 to points farther than this (px) from every node."""
+
+    def __post_init__(self) -> None:
+        _check_choice("robust_loss", self.robust_loss, ROBUST_LOSSES)
+        _check_choice("mask_method", self.mask_method, MASK_METHODS)
+        _check_choice("potts_weighting", self.potts_weighting, POTTS_WEIGHTINGS)
+        _check_choice("sampling_flow", self.sampling_flow, SAMPLING_FLOWS)
+        for name in ("cell_px", "min_flow_px_s", "residual_scale_px_s", "residual_scale_rel",
+                     "lambda_p", "lambda_m", "lm_damping", "mask_dilate_px", "merge_tol"):
+            if getattr(self, name) < 0:
+                raise ConfigError(f"SegmentationConfig.{name} must be >= 0, got {getattr(self, name)}")
+        for name in ("truncation", "uncertainty_scale", "edge_scale_px", "robust_scale",
+                     "max_propagation_px", "model_tol_px_s"):
+            if not getattr(self, name) > 0:
+                raise ConfigError(f"SegmentationConfig.{name} must be > 0, got {getattr(self, name)}")
+        for name in ("max_rounds", "expansion_cycles", "lm_iterations", "n_sampled", "sampling_bins"):
+            if getattr(self, name) < 1:
+                raise ConfigError(f"SegmentationConfig.{name} must be >= 1, got {getattr(self, name)}")
+        if self.residual_scale_px_s == 0 and self.residual_scale_rel == 0:
+            raise ConfigError("SegmentationConfig: residual_scale_px_s and residual_scale_rel are both 0")
+        if self.origin_px is not None:
+            object.__setattr__(self, "origin_px", tuple(float(v) for v in self.origin_px))
+
+
+def _check_choice(name: str, value: str, choices: tuple[str, ...]) -> None:
+    if value not in choices:
+        raise ConfigError(f"SegmentationConfig.{name} must be one of {choices}, got {value!r}")
+
+
+def config_from_dict(d: dict, source: str = "config") -> SegmentationConfig:
+    """Build a config from a mapping; unknown keys and wrong types raise ConfigError."""
+    if not isinstance(d, dict):
+        raise ConfigError(f"{source}: expected a mapping of segmentation parameters, got {type(d).__name__}")
+    fields = {f.name: f for f in dataclasses.fields(SegmentationConfig)}
+    unknown = sorted(set(d) - set(fields))
+    if unknown:
+        raise ConfigError(f"{source}: unknown segmentation parameter(s) {unknown}; known: {sorted(fields)}")
+    defaults = SegmentationConfig()
+    kwargs = {}
+    for key, value in d.items():
+        default = getattr(defaults, key)
+        kwargs[key] = _coerce(key, value, default, source)
+    try:
+        return SegmentationConfig(**kwargs)
+    except ConfigError as exc:
+        raise ConfigError(f"{source}: {exc}") from None
+
+
+def _coerce(key: str, value, default, source: str):
+    """Check a YAML value against the type of the field's default (ints may stand for floats)."""
+    optional = key in ("node_window_us", "max_uncertainty", "origin_px")
+    if value is None:
+        if optional:
+            return None
+        raise ConfigError(f"{source}: field '{key}' may not be null")
+    if key == "origin_px":
+        if not (isinstance(value, (list, tuple)) and len(value) == 2
+                and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)):
+            raise ConfigError(f"{source}: field 'origin_px' must be [column, row] in px, got {value!r}")
+        return tuple(float(v) for v in value)
+    if key == "node_window_us":
+        kind = int
+    elif key == "max_uncertainty":
+        kind = float
+    else:
+        kind = type(default)
+    if isinstance(value, bool) or (kind is not bool and isinstance(value, bool)):
+        raise ConfigError(f"{source}: field '{key}' must be {kind.__name__}, got {value!r}")
+    if kind is float and isinstance(value, (int, float)):
+        return float(value)
+    if kind is int and isinstance(value, int):
+        return value
+    if kind is str and isinstance(value, str):
+        return value
+    raise ConfigError(f"{source}: field '{key}' must be {kind.__name__}, got {value!r}")
+
+
+def preset_names() -> list[str]:
+    """Names of the bundled presets (configs/segmentation/*.yaml)."""
+    return sorted(p.stem for p in _PRESET_DIR.glob("*.yaml"))
+
+
+def load_segmentation_config(name_or_path: str | Path) -> SegmentationConfig:
+    """Load a preset by name ('evimo_like') or a YAML file path into a SegmentationConfig.
+
+    The YAML holds a flat mapping of SegmentationConfig fields; missing fields keep their
+    defaults, unknown fields raise :class:`ConfigError` naming the file and the field.
+    """
+    import yaml
+
+    path = Path(name_or_path)
+    if not path.suffix:
+        path = _PRESET_DIR / f"{name_or_path}.yaml"
+        if not path.is_file():
+            raise ConfigError(f"unknown segmentation preset '{name_or_path}'; presets: {preset_names()}")
+    if not path.is_file():
+        raise ConfigError(f"segmentation config file not found: {path}")
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML ({exc})") from None
+    return config_from_dict({} if data is None else data, source=str(path))

@@ -1,0 +1,183 @@
+"""Initialization (paper Sec. III-D): fast sampling and motion prediction of candidate models.
+
+* Fast sampling: n normal flows with clearly different translation vectors each give a
+  candidate (rho = 1, theta = 0, t = that flow's translation vector).
+
+  The translation vector of a node (``sampling_flow = 'local'``, default) is the translation
+  that best explains the normal flows of the node and its Delaunay neighbours (least squares
+  of n_hat . t = |n| over the 1-ring, a 2x2 system per node accumulated with bincount). A
+  single normal flow is only the component of the motion along its gradient, typically
+  |u| sin(angle) away from the motion itself; its 1-ring sees several gradient directions and
+  resolves the aperture problem, so an object's nodes vote for (nearly) one vector. Nodes
+  whose ring is ill-conditioned (all gradients parallel) do not vote.
+  ``sampling_flow = 'normal'`` uses the normal flow itself, as the paper's text reads. "Clearly different" and "typical" are made
+  deterministic with a 2D histogram of the flow vectors: bins are visited from the most to
+  the least populated, and a bin's mean flow becomes a candidate when it lies at least
+  ``min_separation`` (a share of the flows' robust range) from every candidate taken so far.
+  Populated bins first means random outlier flows, which scatter over many sparse bins,
+  rarely become candidates.
+* Motion prediction: each independently moving object (IMO) of the previous window is grown
+  into a box (the box of its nodes plus ``margin_px`` on every side), the box is moved by the
+  object's model flow at the box centre times the time between the windows, and a candidate is
+  fitted by Levenberg-Marquardt (started from the previous model) to the current nodes inside
+  the moved box. All boxes are fitted in one batched call.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from evseg.segmentation.fitting import fit_lm
+from evseg.segmentation.motion_model import flow_field
+
+
+def local_translations(
+    nx: np.ndarray, ny: np.ndarray, edges: np.ndarray, min_conditioning: float = 0.1
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Least-squares translation of every node's 1-ring (the node and its graph neighbours).
+
+    Solves sum_j n_hat_j n_hat_j^T t = sum_j |n_j| n_hat_j per node (2x2, closed form).
+
+    Args:
+        nx, ny: (M,) normal flow px/s (|n| > 0). edges: (E, 2) graph edges.
+        min_conditioning: nodes whose system has eigenvalue ratio below this do not vote.
+    Returns:
+        (tx, ty, ok): (M,) translations px/s and the (M,) mask of well-conditioned nodes.
+    """
+    nx = np.asarray(nx, dtype=np.float64)
+    ny = np.asarray(ny, dtype=np.float64)
+    m = len(nx)
+    norm = np.hypot(nx, ny)
+    hx, hy = nx / norm, ny / norm
+    terms = np.stack([hx * hx, hx * hy, hy * hy, nx, ny])  # n_hat |n| = n
+    acc = terms.copy()
+    if len(edges):
+        i, j = edges[:, 0], edges[:, 1]
+        for r in range(5):
+            acc[r] += np.bincount(i, weights=terms[r][j], minlength=m)
+            acc[r] += np.bincount(j, weights=terms[r][i], minlength=m)
+    a, b, c, bx, by = acc
+    det = a * c - b * b
+    tr = a + c
+    # eigenvalue ratio lmin/lmax of [[a, b], [b, c]] from det and trace
+    disc = np.sqrt(np.maximum(tr * tr / 4.0 - det, 0.0))
+    lmax, lmin = tr / 2.0 + disc, tr / 2.0 - disc
+    ok = lmin >= min_conditioning * np.maximum(lmax, 1e-300)
+    safe = np.where(ok, det, 1.0)
+    tx = np.where(ok, (c * bx - b * by) / safe, nx)
+    ty = np.where(ok, (a * by - b * bx) / safe, ny)
+    return tx, ty, ok
+
+
+def fast_sampling(
+    nx: np.ndarray,
+    ny: np.ndarray,
+    n: int,
+    bins: int = 12,
+    min_separation: float = 0.15,
+) -> np.ndarray:
+    """Up to ``n`` translation candidates from distinct, frequent normal-flow vectors.
+
+    Args:
+        nx, ny: (M,) normal flow of the nodes, px/s.
+        n: number of candidates wanted; fewer come back when the flows are not that varied.
+        bins: histogram bins per axis over the flows' 2nd-98th percentile box.
+        min_separation: minimum distance between candidates as a share of that box's side.
+    Returns:
+        (n', 4) models (1, 0, t_x, t_y), n' <= n, most frequent flow first.
+    """
+    nx = np.asarray(nx, dtype=np.float64)
+    ny = np.asarray(ny, dtype=np.float64)
+    if len(nx) == 0 or n < 1:
+        return np.empty((0, 4))
+    lo = np.array([np.percentile(nx, 2), np.percentile(ny, 2)])
+    hi = np.array([np.percentile(nx, 98), np.percentile(ny, 98)])
+    span = max(float((hi - lo).max()), 1e-9)
+    ix = np.clip(((nx - lo[0]) / span * bins).astype(np.int64), 0, bins - 1)
+    iy = np.clip(((ny - lo[1]) / span * bins).astype(np.int64), 0, bins - 1)
+    key = ix * bins + iy
+    count = np.bincount(key, minlength=bins * bins)
+    occupied = np.flatnonzero(count)
+    mean_x = np.bincount(key, weights=nx, minlength=bins * bins)[occupied] / count[occupied]
+    mean_y = np.bincount(key, weights=ny, minlength=bins * bins)[occupied] / count[occupied]
+    order = np.argsort(-count[occupied], kind="stable")
+    taken: list[tuple[float, float]] = []
+    min_d = min_separation * span
+    for o in order:
+        cx, cy = mean_x[o], mean_y[o]
+        if all((cx - px) ** 2 + (cy - py) ** 2 >= min_d * min_d for px, py in taken):
+            taken.append((cx, cy))
+            if len(taken) == n:
+                break
+    t = np.array(taken, dtype=np.float64).reshape(-1, 2)
+    return np.column_stack([np.ones(len(t)), np.zeros(len(t)), t])
+
+
+def predict_boxes(
+    boxes: np.ndarray, models: np.ndarray, origin_px: tuple[float, float], dt_s: float, margin_px: float
+) -> np.ndarray:
+    """Move object boxes by their model's flow over ``dt_s`` seconds and grow them.
+
+    Args:
+        boxes: (K, 4) (x0, y0, x1, y1) px, absolute. models: (K, 4) of those objects.
+        origin_px: model origin (column, row). dt_s: time from the previous window, s.
+    Returns:
+        (K, 4) float boxes, px.
+    """
+    boxes = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
+    if len(boxes) == 0:
+        return boxes.copy()
+    cx = (boxes[:, 0] + boxes[:, 2]) / 2.0 - origin_px[0]
+    cy = (boxes[:, 1] + boxes[:, 3]) / 2.0 - origin_px[1]
+    ux, uy = flow_field(models, cx, cy)
+    k = np.arange(len(boxes))
+    dx, dy = ux[k, k] * dt_s, uy[k, k] * dt_s
+    return np.column_stack([boxes[:, 0] + dx - margin_px, boxes[:, 1] + dy - margin_px,
+                            boxes[:, 2] + dx + margin_px, boxes[:, 3] + dy + margin_px])
+
+
+def motion_prediction(
+    x: np.ndarray,
+    y: np.ndarray,
+    nx: np.ndarray,
+    ny: np.ndarray,
+    boxes: np.ndarray,
+    models: np.ndarray,
+    origin_px: tuple[float, float],
+    dt_s: float,
+    margin_px: float,
+    min_nodes: int,
+    weights: np.ndarray | None = None,
+    loss: str = "cauchy",
+    loss_scale_px_s: float = 1.0,
+    iterations: int = 6,
+) -> np.ndarray:
+    """Candidate models of the previous window's objects, fitted in their predicted boxes.
+
+    Args:
+        x, y: (M,) current node positions, absolute px. nx, ny: (M,) px/s.
+        boxes: (K, 4) previous object boxes (inclusive px, absolute); models: (K, 4) their
+            models about ``origin_px``. dt_s: seconds between the two windows.
+        min_nodes: boxes holding fewer current nodes give no candidate.
+    Returns:
+        (K', 4) candidate models, K' <= K, in the order of the boxes.
+    """
+    boxes = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
+    models = np.asarray(models, dtype=np.float64).reshape(-1, 4)
+    if len(boxes) == 0 or len(x) == 0:
+        return np.empty((0, 4))
+    pred = predict_boxes(boxes, models, origin_px, dt_s, margin_px)
+    x = np.asarray(x, dtype=np.float64)
+    y = np.asarray(y, dtype=np.float64)
+    inside = ((x[:, None] >= pred[:, 0]) & (x[:, None] <= pred[:, 2])
+              & (y[:, None] >= pred[:, 1]) & (y[:, None] <= pred[:, 3]))  # (M, K)
+    counts = inside.sum(axis=0)
+    ok = np.flatnonzero(counts >= min_nodes)
+    if len(ok) == 0:
+        return np.empty((0, 4))
+    node, box = np.nonzero(inside[:, ok])  # a node may lie in several boxes: repeat it
+    w = None if weights is None else np.asarray(weights, dtype=np.float64)[node]
+    fitted = fit_lm(x[node] - origin_px[0], y[node] - origin_px[1], np.asarray(nx)[node],
+                    np.asarray(ny)[node], box, models[ok], weights=w, loss=loss,
+                    loss_scale_px_s=loss_scale_px_s, iterations=iterations)
+    return fitted

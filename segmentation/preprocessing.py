@@ -1,0 +1,188 @@
+"""Pre-processing: downsample a window's normal flow to graph nodes, Delaunay graph of them.
+
+Paper section III-A: "the normal flow is downsampled at fixed time intervals, followed by the
+construction of a spatial graph via Delaunay triangulation". Here:
+
+* Optionally only the latest ``node_window_us`` of the window is kept (the fixed interval).
+* Flows that are not finite, slower than ``min_flow_px_s`` (no usable direction) or more
+  uncertain than ``max_uncertainty`` are dropped.
+* Downsampling rule: the image is cut into square cells of ``cell_px``; each cell keeps ONE
+  flow, the most certain one (lowest uncertainty) and, among equally certain ones (always when
+  no uncertainty is given), the latest one (largest t, then the largest input index). The latest
+  flow is the one that best describes the end of the window, where the next window starts.
+* Nodes whose positions coincide exactly (possible only with ``cell_px = 0``) are merged by
+  the same rule, so the triangulation never sees duplicates.
+* Graph: edges of the 2D Delaunay triangulation of node positions, as an (E, 2) int64 array,
+  unique, each row (i, j) with i < j. Degenerate inputs are defined: 0 or 1 node -> no edge;
+  2 nodes -> one edge; all nodes collinear (Qhull fails) -> a chain along the line.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class NodeGraph:
+    """The graph the segmentation works on (M nodes, E edges).
+
+    Attributes:
+        index: (M,) int64, index of each node's flow in the caller's input arrays.
+        x, y: (M,) float64 node position, px (column, row; as given by the caller).
+        t: (M,) int64 timestamp, microseconds.
+        nx, ny: (M,) float64 normal flow, px/s.
+        confidence: (M,) float64 in (0, 1], data-term weight from the flow uncertainty.
+        edges: (E, 2) int64 Delaunay edges, unique, i < j.
+        edge_length: (E,) float64 length of each edge, px.
+    """
+
+    index: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    t: np.ndarray
+    nx: np.ndarray
+    ny: np.ndarray
+    confidence: np.ndarray
+    edges: np.ndarray
+    edge_length: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+
+def select_nodes(
+    x: np.ndarray,
+    y: np.ndarray,
+    t: np.ndarray,
+    nx: np.ndarray,
+    ny: np.ndarray,
+    uncertainty: np.ndarray | None,
+    cell_px: float,
+    min_flow_px_s: float = 1.0,
+    max_uncertainty: float | None = None,
+    node_window_us: int | None = None,
+) -> np.ndarray:
+    """Indices (sorted, int64) of the flows kept as nodes, one per ``cell_px`` cell.
+
+    Args:
+        x, y: (N,) positions, px. t: (N,) int64 microseconds. nx, ny: (N,) normal flow, px/s.
+        uncertainty: (N,) or None; larger = less certain.
+        cell_px: cell side in px; 0 keeps every flow (exact duplicate positions merged).
+    """
+    x = np.asarray(x, dtype=np.float64)
+    y = np.asarray(y, dtype=np.float64)
+    t = np.asarray(t, dtype=np.int64)
+    nx = np.asarray(nx, dtype=np.float64)
+    ny = np.asarray(ny, dtype=np.float64)
+    ok = np.isfinite(x) & np.isfinite(y) & np.isfinite(nx) & np.isfinite(ny)
+    ok &= np.hypot(nx, ny) >= max(min_flow_px_s, 1e-12)
+    unc = None
+    if uncertainty is not None:
+        unc = np.asarray(uncertainty, dtype=np.float64)
+        ok &= np.isfinite(unc)
+        if max_uncertainty is not None:
+            ok &= unc <= max_uncertainty
+    if node_window_us is not None and ok.any():
+        ok &= t >= t[ok].max() - int(node_window_us)
+    cand = np.flatnonzero(ok)
+    if len(cand) == 0:
+        return cand.astype(np.int64)
+    if cell_px > 0:
+        cx = np.floor(x[cand] / cell_px).astype(np.int64)
+        cy = np.floor(y[cand] / cell_px).astype(np.int64)
+        # Exact coordinates as cell keys: with cell_px = 0 only exact duplicates merge.
+    else:
+        cx = np.unique(x[cand], return_inverse=True)[1].astype(np.int64)
+        cy = np.unique(y[cand], return_inverse=True)[1].astype(np.int64)
+    cx -= cx.min()
+    cy -= cy.min()
+    key = cx * (int(cy.max()) + 1) + cy
+    # Sort so that within a cell the preferred flow comes LAST: lexsort's last key is primary.
+    cert = -unc[cand] if unc is not None else np.zeros(len(cand))
+    order = np.lexsort((cand, t[cand], cert, key))
+    key_sorted = key[order]
+    last = np.ones(len(order), dtype=bool)
+    last[:-1] = key_sorted[1:] != key_sorted[:-1]
+    return np.sort(cand[order[last]])
+
+
+def delaunay_edges(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Unique edges (E, 2) int64 with i < j of the Delaunay triangulation of distinct points.
+
+    Degenerate cases: < 2 points -> no edge; 2 points -> (0, 1); collinear points -> a chain
+    joining consecutive points along the line (the triangulation's limit).
+    """
+    from scipy.spatial import Delaunay, QhullError
+
+    n = len(x)
+    if n < 2:
+        return np.empty((0, 2), dtype=np.int64)
+    pts = np.column_stack([np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)])
+    if n >= 3:
+        try:
+            simplices = Delaunay(pts).simplices
+        except QhullError:
+            simplices = None
+        if simplices is not None:
+            e = np.concatenate([simplices[:, [0, 1]], simplices[:, [1, 2]], simplices[:, [0, 2]]])
+            e = np.sort(e, axis=1).astype(np.int64)
+            return _unique_pairs(e, n)
+    # Collinear (or 2 points): chain along the principal direction.
+    d = pts - pts.mean(axis=0)
+    direction = np.linalg.svd(d, full_matrices=False)[2][0]
+    order = np.argsort(d @ direction, kind="stable")
+    e = np.sort(np.column_stack([order[:-1], order[1:]]), axis=1).astype(np.int64)
+    return _unique_pairs(e, n)
+
+
+def _unique_pairs(e: np.ndarray, n: int) -> np.ndarray:
+    """Unique rows of an (E, 2) array of node pairs < n, sorted (much faster than axis=0)."""
+    key = np.unique(e[:, 0] * n + e[:, 1])
+    return np.column_stack([key // n, key % n])
+
+
+def node_confidence(uncertainty: np.ndarray | None, scale: float, n: int) -> np.ndarray:
+    """Confidence c = 1 / (1 + (uncertainty / scale)^2) in (0, 1]; all ones without uncertainty."""
+    if uncertainty is None:
+        return np.ones(n)
+    u = np.asarray(uncertainty, dtype=np.float64)
+    return 1.0 / (1.0 + (u / scale) ** 2)
+
+
+def build_node_graph(
+    x: np.ndarray,
+    y: np.ndarray,
+    t: np.ndarray,
+    nx: np.ndarray,
+    ny: np.ndarray,
+    uncertainty: np.ndarray | None = None,
+    cell_px: float = 4.0,
+    min_flow_px_s: float = 1.0,
+    max_uncertainty: float | None = None,
+    node_window_us: int | None = None,
+    uncertainty_scale: float = 0.3,
+) -> NodeGraph:
+    """Downsample the flows to nodes (:func:`select_nodes`) and triangulate them.
+
+    All arrays are (N,); see :class:`NodeGraph` for the result's units. Inputs are not modified.
+    """
+    idx = select_nodes(x, y, t, nx, ny, uncertainty, cell_px, min_flow_px_s, max_uncertainty,
+                       node_window_us)
+    xs = np.asarray(x, dtype=np.float64)[idx]
+    ys = np.asarray(y, dtype=np.float64)[idx]
+    edges = delaunay_edges(xs, ys)
+    length = np.hypot(xs[edges[:, 0]] - xs[edges[:, 1]], ys[edges[:, 0]] - ys[edges[:, 1]])
+    unc = None if uncertainty is None else np.asarray(uncertainty, dtype=np.float64)[idx]
+    return NodeGraph(
+        index=idx,
+        x=xs,
+        y=ys,
+        t=np.asarray(t, dtype=np.int64)[idx],
+        nx=np.asarray(nx, dtype=np.float64)[idx],
+        ny=np.asarray(ny, dtype=np.float64)[idx],
+        confidence=node_confidence(unc, uncertainty_scale, len(idx)),
+        edges=edges,
+        edge_length=length,
+    )

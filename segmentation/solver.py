@@ -1,0 +1,328 @@
+"""Segment one window of normal flow: alternate labeling (alpha-expansion) and fitting (LM).
+
+Paper Sec. III-B/C: with the candidate models fixed, the labeling minimises the energy
+(:mod:`.energy`) by alpha-expansion with label costs (:mod:`.expansion`); with the labeling
+fixed, each label's model is refitted (:mod:`.fitting`); repeat until the models converge.
+
+Order of the steps (our choice where the paper is silent):
+
+1. Nodes and Delaunay graph (:mod:`.preprocessing`).
+2. Candidates: motion prediction from the previous window's objects (and its background
+   model), then fast sampling (``n_sampled``, or ``n_sampled_with_prediction`` when prediction
+   gave a candidate).
+3. Round 0: every node takes its cheapest candidate (no smoothness) and every candidate is
+   refitted by LM to those nodes. Sampled candidates are pure translations equal to one normal
+   flow; one robust refit turns each into the motion of the nodes it best explains, which keeps
+   the label cost from deleting an object's only candidate before it was ever fitted.
+4. Rounds 1..max_rounds: alpha-expansion from the current labeling, drop empty labels, LM refit;
+   a refitted model replaces the old one only if it lowers its label's data energy, so the
+   energy never increases. Stop when the labeling is unchanged and no model's flow moved more
+   than ``model_tol_px_s``.
+5. The label with the most nodes is the background (label 0); the others are independently
+   moving objects 1..K by decreasing node count; objects under ``min_object_nodes`` nodes
+   become -1 (unassigned).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from evseg.errors import EventDataError
+from evseg.segmentation.config import SegmentationConfig
+from evseg.segmentation.energy import data_costs, energy, potts_weights
+from evseg.segmentation.expansion import alpha_expansion
+from evseg.segmentation.fitting import fit_lm
+from evseg.segmentation.initialization import fast_sampling, local_translations, motion_prediction
+from evseg.segmentation.motion_model import model_change_px_s
+from evseg.segmentation.outputs import nearest_node_labels, object_regions, region_box, region_mask
+from evseg.segmentation.preprocessing import build_node_graph
+
+
+@dataclass(frozen=True)
+class SegmentationResult:
+    """Segmentation of one window (M nodes, K objects).
+
+    Attributes:
+        node_index: (M,) int64 index into the input arrays of each node's flow.
+        node_x, node_y: (M,) float64 node positions, px (column, row, as given).
+        node_t: (M,) int64 node timestamps, microseconds.
+        node_labels: (M,) int64; 0 = background, 1..K = objects (IMOs), -1 = unassigned.
+        models: (K+1, 4) float64 (rho, theta, t_x, t_y) per label, row 0 = background. The
+            flow is u(x) = (rho R(theta) - I)(x - origin) + t in px/s: t in px/s,
+            rho cos(theta) - 1 the divergence rate (1/s), rho sin(theta) the rotation rate
+            (rad/s for small rates).
+        origin_px: (column, row) origin of the models, px.
+        boxes: {k: (x0, y0, x1, y1)} inclusive px box per object.
+        masks: {k: bool (H, W)} dense mask per object (empty dict without sensor size).
+        edges: (E, 2) int64 Delaunay edges of the nodes.
+        energy: final energy (dimensionless, see :mod:`.energy`).
+        n_rounds: alternation rounds run (after round 0).
+        n_candidates: candidate models at the start (predicted + sampled).
+        n_predicted: candidates that came from motion prediction.
+        sigma_px_s: residual scale used, px/s.
+        t_ref_us: reference time of the window (median node time), microseconds.
+        sensor_size: (width, height) or None.
+        timings: ms per stage: 'preprocessing', 'initialization', 'labeling_fitting', 'outputs'.
+        max_propagation_px: distance limit used by :func:`propagate_labels`.
+    """
+
+    node_index: np.ndarray
+    node_x: np.ndarray
+    node_y: np.ndarray
+    node_t: np.ndarray
+    node_labels: np.ndarray
+    models: np.ndarray
+    origin_px: tuple[float, float]
+    boxes: dict
+    masks: dict
+    edges: np.ndarray
+    energy: float
+    n_rounds: int
+    n_candidates: int
+    n_predicted: int
+    sigma_px_s: float
+    t_ref_us: int
+    sensor_size: tuple[int, int] | None
+    timings: dict = field(default_factory=dict)
+    max_propagation_px: float = 12.0
+
+    @property
+    def n_objects(self) -> int:
+        """Number of independently moving objects K."""
+        return len(self.models) - 1 if len(self.models) else 0
+
+
+def propagate_labels(result: SegmentationResult, x: np.ndarray, y: np.ndarray,
+                     max_distance_px: float | None = None) -> np.ndarray:
+    """Label of the nearest node for every point (px), -1 beyond the distance limit.
+
+    Args:
+        result: a window's segmentation. x, y: (N,) points, px (same frame as the nodes).
+        max_distance_px: limit (px); default the config's ``max_propagation_px``.
+    Returns:
+        (N,) int64 labels (0 = background, k = object k, -1 = unassigned / too far).
+    """
+    limit = result.max_propagation_px if max_distance_px is None else float(max_distance_px)
+    return nearest_node_labels(result.node_x, result.node_y, result.node_labels, x, y, limit)
+
+
+def _validate(x, y, t, nx, ny, uncertainty):
+    arrays = {"x": x, "y": y, "t": t, "nx": nx, "ny": ny}
+    if uncertainty is not None:
+        arrays["uncertainty"] = uncertainty
+    arrays = {k: np.asarray(v) for k, v in arrays.items()}
+    n = len(arrays["x"]) if arrays["x"].ndim == 1 else -1
+    for k, v in arrays.items():
+        if v.ndim != 1 or len(v) != n:
+            raise EventDataError(
+                f"segment_normal_flow: '{k}' must be 1-D with the length of 'x' "
+                f"({arrays['x'].shape}), got shape {v.shape}")
+    return arrays
+
+
+def _origin(config: SegmentationConfig, sensor_size) -> tuple[float, float]:
+    if config.origin_px is not None:
+        return config.origin_px
+    if sensor_size is not None:
+        return ((sensor_size[0] - 1) / 2.0, (sensor_size[1] - 1) / 2.0)
+    return (0.0, 0.0)
+
+
+def segment_normal_flow(
+    x: np.ndarray,
+    y: np.ndarray,
+    t: np.ndarray,
+    nx: np.ndarray,
+    ny: np.ndarray,
+    uncertainty: np.ndarray | None = None,
+    config: SegmentationConfig = SegmentationConfig(),
+    sensor_size: tuple[int, int] | None = None,
+    previous: SegmentationResult | None = None,
+) -> SegmentationResult:
+    """Segment one window of normal flow into background and independently moving objects.
+
+    Args:
+        x, y: (N,) flow positions, px (column, row; may be undistorted, non-integer).
+        t: (N,) int64 timestamps, microseconds.
+        nx, ny: (N,) normal flow, px/s (NaN or slower than ``min_flow_px_s`` = no flow).
+        uncertainty: (N,) optional; larger = less certain.
+        config: parameters. sensor_size: (width, height) px; needed for masks and the
+            default origin. previous: the previous window's result (motion prediction).
+    Returns:
+        :class:`SegmentationResult`. Inputs are not modified.
+    """
+    a = _validate(x, y, t, nx, ny, uncertainty)
+    cfg = config
+    timings = {}
+    tic = time.perf_counter()
+    graph = build_node_graph(a["x"], a["y"], a["t"], a["nx"], a["ny"], a.get("uncertainty"),
+                             cfg.cell_px, cfg.min_flow_px_s, cfg.max_uncertainty,
+                             cfg.node_window_us, cfg.uncertainty_scale)
+    origin = _origin(cfg, sensor_size)
+    xr, yr = graph.x - origin[0], graph.y - origin[1]
+    m = len(graph)
+    norm = np.hypot(graph.nx, graph.ny)
+    sigma = max(cfg.residual_scale_px_s, cfg.residual_scale_rel * float(np.median(norm))) if m else 1.0
+    edge_w = potts_weights(graph.edge_length, cfg.lambda_p, cfg.potts_weighting, cfg.edge_scale_px)
+    radius = float(np.sqrt(np.max(xr * xr + yr * yr))) if m else 1.0
+    t_ref = int(np.median(graph.t)) if m else 0
+    timings["preprocessing"] = (time.perf_counter() - tic) * 1e3
+
+    tic = time.perf_counter()
+    lm_kw = dict(loss=cfg.robust_loss, loss_scale_px_s=cfg.robust_scale * sigma,
+                 truncation=cfg.truncation / cfg.robust_scale, iterations=cfg.lm_iterations,
+                 damping=cfg.lm_damping)
+    predicted = np.empty((0, 4))
+    n_object_candidates = 0
+    if previous is not None and m and previous.n_objects > 0 and previous.origin_px == origin:
+        ids = sorted(previous.boxes)
+        if ids:
+            dt_s = (t_ref - previous.t_ref_us) * 1e-6
+            predicted = motion_prediction(
+                graph.x, graph.y, graph.nx, graph.ny,
+                np.array([previous.boxes[k] for k in ids], dtype=np.float64),
+                previous.models[ids], origin, dt_s, cfg.prediction_margin_px,
+                cfg.min_prediction_nodes, weights=graph.confidence, loss=cfg.robust_loss,
+                loss_scale_px_s=cfg.robust_scale * sigma, iterations=cfg.lm_iterations)
+            n_object_candidates = len(predicted)
+    if previous is not None and len(previous.models) and previous.origin_px == origin:
+        # The previous background model is a free, usually excellent candidate.
+        predicted = np.concatenate([previous.models[:1], predicted])
+    n_sample = cfg.n_sampled_with_prediction if n_object_candidates else cfg.n_sampled
+    vx, vy = graph.nx, graph.ny
+    if cfg.sampling_flow == "local" and m:
+        tx, ty, ok = local_translations(graph.nx, graph.ny, graph.edges)
+        # Every node votes when no 1-ring is well conditioned (e.g. one straight edge).
+        vx, vy = (tx[ok], ty[ok]) if ok.any() else (tx, ty)
+    sampled = fast_sampling(vx, vy, n_sample, cfg.sampling_bins, cfg.min_candidate_separation)
+    models = np.concatenate([predicted, sampled]) if m else np.empty((0, 4))
+    n_candidates = len(models)
+    timings["initialization"] = (time.perf_counter() - tic) * 1e3
+
+    tic = time.perf_counter()
+    labels = np.zeros(m, dtype=np.int64)
+    n_rounds = 0
+    e_final = 0.0
+    if m and len(models):
+        def costs(mod):
+            return data_costs(mod, xr, yr, graph.nx, graph.ny, sigma, cfg.truncation, graph.confidence)
+
+        ar = np.arange(m)
+        # Round 0: greedy labeling, one refit of every candidate (see module docstring).
+        data = costs(models)
+        labels = np.argmin(data, axis=1)
+        models, data = _refit(models, data, labels, xr, yr, graph, lm_kw, costs, ar)
+        models, data, labels = _merge_duplicates(models, data, labels, cfg.merge_tol * sigma, radius,
+                                                 graph.edges, edge_w, cfg.lambda_m)
+        for n_rounds in range(1, cfg.max_rounds + 1):
+            h = np.full(len(models), cfg.lambda_m)
+            res = alpha_expansion(labels, data, graph.edges, edge_w, h, cfg.expansion_cycles)
+            used = np.flatnonzero(np.bincount(res.labels, minlength=len(models)))
+            remap = np.full(len(models), -1, dtype=np.int64)
+            remap[used] = np.arange(len(used))
+            new_labels = remap[res.labels]
+            changed = len(used) != len(models) or not np.array_equal(new_labels, labels)
+            models, data, labels = models[used], data[:, used], new_labels
+            old = models
+            models, data = _refit(models, data, labels, xr, yr, graph, lm_kw, costs, ar)
+            models, data, labels = _merge_duplicates(models, data, labels, cfg.merge_tol * sigma,
+                                                     radius, graph.edges, edge_w, cfg.lambda_m)
+            if len(models) != len(old):
+                changed = True
+                old = models  # merged: the tolerance test is meaningless this round
+            moved = float(model_change_px_s(old, models, radius).max())
+            if not changed and moved <= cfg.model_tol_px_s:
+                break
+        h = np.full(len(models), cfg.lambda_m)
+        e_final = energy(labels, data, graph.edges, edge_w, h)
+        # Background = largest cluster; objects by decreasing size.
+        sizes = np.bincount(labels, minlength=len(models))
+        order = np.argsort(-sizes, kind="stable")
+        rank = np.empty(len(order), dtype=np.int64)
+        rank[order] = np.arange(len(order))
+        labels, models, sizes = rank[labels], models[order], sizes[order]
+        small = np.flatnonzero(sizes < cfg.min_object_nodes)
+        small = small[small > 0]
+        if len(small):
+            keep = np.setdiff1d(np.arange(len(models)), small)
+            remap = np.full(len(models), -1, dtype=np.int64)
+            remap[keep] = np.arange(len(keep))
+            labels, models = remap[labels], models[keep]
+    timings["labeling_fitting"] = (time.perf_counter() - tic) * 1e3
+
+    tic = time.perf_counter()
+    n_obj = max(len(models) - 1, 0)
+    regions = object_regions(labels, graph.edges, n_obj)
+    boxes, masks = {}, {}
+    for k, nodes in regions.items():
+        boxes[k] = region_box(graph.x[nodes], graph.y[nodes], cfg.mask_dilate_px, sensor_size)
+        if sensor_size is not None:
+            masks[k] = region_mask(graph.x[nodes], graph.y[nodes], sensor_size, cfg.mask_method,
+                                   cfg.mask_dilate_px, cfg.cell_px)
+    timings["outputs"] = (time.perf_counter() - tic) * 1e3
+    return SegmentationResult(
+        node_index=graph.index, node_x=graph.x, node_y=graph.y, node_t=graph.t,
+        node_labels=labels, models=np.asarray(models, dtype=np.float64).reshape(-1, 4),
+        origin_px=origin, boxes=boxes, masks=masks, edges=graph.edges, energy=e_final,
+        n_rounds=n_rounds, n_candidates=n_candidates, n_predicted=len(predicted),
+        sigma_px_s=sigma, t_ref_us=t_ref,
+        sensor_size=None if sensor_size is None else (int(sensor_size[0]), int(sensor_size[1])),
+        timings=timings, max_propagation_px=cfg.max_propagation_px,
+    )
+
+
+def _refit(models, data, labels, xr, yr, graph, lm_kw, costs, ar):
+    """LM-refit every label's model; keep a new model only if it lowers its label's data energy."""
+    new = fit_lm(xr, yr, graph.nx, graph.ny, labels, models, weights=graph.confidence, **lm_kw)
+    new_data = costs(new)
+    n = len(models)
+    e_old = np.bincount(labels, weights=data[ar, labels], minlength=n)
+    e_new = np.bincount(labels, weights=new_data[ar, labels], minlength=n)
+    better = e_new < e_old - 1e-12 * np.maximum(e_old, 1.0)
+    if not better.any():
+        return models, data
+    models = models.copy()
+    models[better] = new[better]
+    data = data.copy()
+    data[:, better] = new_data[:, better]
+    return models, data
+
+
+def _merge_duplicates(models, data, labels, tol_px_s, radius_px, edges, edge_w, lambda_m):
+    """Merge labels whose flow fields differ by less than ``tol_px_s`` over the sensor.
+
+    Near-identical models (several sampled candidates converging to the background) are
+    exactly what the label cost removes, but an expansion move between two near-identical
+    labels is the slowest kind of max-flow (every node's two costs almost tie). The smaller
+    label of such a pair joins the larger; the merge is kept only if the exact energy drops.
+    """
+    n = len(models)
+    if n < 2:
+        return models, data, labels
+    from evseg.segmentation.motion_model import linear_parameters
+
+    q = linear_parameters(models)
+    dq = q[:, None, :] - q[None, :, :]
+    diff = np.hypot(dq[..., 2], dq[..., 3]) + radius_px * np.hypot(dq[..., 0], dq[..., 1])
+    sizes = np.bincount(labels, minlength=n)
+    target = np.arange(n)
+    for a in np.argsort(-sizes, kind="stable"):  # small loop over labels (L <= ~20), not nodes
+        if target[a] != a:
+            continue
+        dup = np.flatnonzero((diff[a] < tol_px_s) & (target == np.arange(n)) & (np.arange(n) != a)
+                             & (sizes <= sizes[a]))
+        target[dup] = a
+    if np.all(target == np.arange(n)):
+        return models, data, labels
+    keep = np.flatnonzero(target == np.arange(n))
+    remap = np.full(n, -1, dtype=np.int64)
+    remap[keep] = np.arange(len(keep))
+    new_labels = remap[target[labels]]
+    h_old = np.full(n, lambda_m)
+    h_new = np.full(len(keep), lambda_m)
+    if energy(new_labels, data[:, keep], edges, edge_w, h_new) < energy(labels, data, edges, edge_w, h_old):
+        return models[keep], data[:, keep], new_labels
+    return models, data, labels

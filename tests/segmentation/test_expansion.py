@@ -1,0 +1,129 @@
+"""Alpha-expansion with label costs: optimality of each move, energy decrease, label removal."""
+
+import itertools
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from evseg.segmentation.energy import energy
+from evseg.segmentation.expansion import alpha_expansion, expansion_move, move_cannot_improve
+from evseg.segmentation.preprocessing import delaunay_edges
+
+
+def random_problem(seed, m=7, n_labels=3, label_cost=None):
+    rng = np.random.default_rng(seed)
+    x, y = rng.uniform(0, 10, m), rng.uniform(0, 10, m)
+    edges = delaunay_edges(x, y)
+    data = rng.uniform(0, 5, (m, n_labels))
+    w = rng.uniform(0, 2, len(edges))
+    h = rng.uniform(0, 6, n_labels) if label_cost is None else np.full(n_labels, label_cost)
+    labels = rng.integers(0, n_labels, m)
+    return labels, data, edges, w, h
+
+
+def brute_force_move(labels, alpha, data, edges, w, h):
+    best, best_e = None, np.inf
+    for s in itertools.product([0, 1], repeat=len(labels)):
+        cand = np.where(np.array(s, dtype=bool), alpha, labels)
+        e = energy(cand, data, edges, w, h)
+        if e < best_e - 1e-12:
+            best, best_e = cand, e
+    return best, best_e
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 10_000), alpha=st.integers(0, 2))
+def test_each_expansion_move_is_optimal_over_its_move_space(seed, alpha):
+    labels, data, edges, w, h = random_problem(seed)
+    _, best_e = brute_force_move(labels, alpha, data, edges, w, h)
+    got = expansion_move(labels, alpha, data, edges, w, h)
+    assert np.all((got == labels) | (got == alpha))
+    e_got = energy(got, data, edges, w, h)
+    # When alpha is unused, the cut minimises the move without alpha's label cost and the
+    # acceptance test decides (see expansion.py): the optimum is min(current, cut + h_alpha).
+    e_cur = energy(labels, data, edges, w, h)
+    np.testing.assert_allclose(min(e_got, e_cur), best_e, rtol=0, atol=1e-9)
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 10_000))
+def test_two_labels_expansion_reaches_global_optimum(seed):
+    # With two labels an expansion move is a full binary cut, so alpha-expansion is exact.
+    labels, data, edges, w, h = random_problem(seed, m=8, n_labels=2)
+    res = alpha_expansion(labels, data, edges, w, h, max_cycles=3)
+    best = min(energy(np.array(c), data, edges, w, h) for c in itertools.product([0, 1], repeat=8))
+    np.testing.assert_allclose(res.energy, best, atol=1e-9)
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 10_000))
+def test_energy_never_increases(seed):
+    labels, data, edges, w, h = random_problem(seed, m=12, n_labels=4)
+    e0 = energy(labels, data, edges, w, h)
+    res = alpha_expansion(labels, data, edges, w, h, max_cycles=1)
+    assert res.energy <= e0 + 1e-12
+    np.testing.assert_allclose(res.energy, energy(res.labels, data, edges, w, h))
+
+
+def test_redundant_label_is_removed_by_label_cost():
+    # Two labels explain every node equally well; only the label cost tells them apart.
+    m = 30
+    rng = np.random.default_rng(0)
+    x, y = rng.uniform(0, 10, m), rng.uniform(0, 10, m)
+    edges = delaunay_edges(x, y)
+    data = np.zeros((m, 2))
+    labels = (x > 5).astype(np.int64)  # split in two halves
+    w = np.full(len(edges), 1e-3)  # smoothness alone would hardly care
+    with_cost = alpha_expansion(labels, data, edges, w, np.array([5.0, 5.0]))
+    assert len(np.unique(with_cost.labels)) == 1
+    np.testing.assert_allclose(with_cost.energy, 5.0)
+    without = alpha_expansion(labels, data, edges, np.zeros(len(edges)), np.zeros(2))
+    assert len(np.unique(without.labels)) == 2  # nothing to gain: nothing moves
+
+
+def test_hand_computed_three_node_chain():
+    # Chain 0-1-2, Potts weight 1 per edge. Data: node 0 wants label 0, node 2 label 1,
+    # node 1 is indifferent (cost 0.5 both). Start all 0; expanding label 1 with label cost 0:
+    # options: [0,0,0] E = 0 + 0.5 + 3 = 3.5; [0,0,1] E = 0.5 + 0 + 1 = 1.5;
+    # [0,1,1] E = 0.5 + 0 + 1 = 1.5; [1,1,1] E = 3 + 0.5 + 0 = 3.5. Ties resolved by the cut,
+    # energy 1.5 either way.
+    data = np.array([[0.0, 3.0], [0.5, 0.5], [3.0, 0.0]])
+    edges = np.array([[0, 1], [1, 2]])
+    w = np.ones(2)
+    got = expansion_move(np.zeros(3, dtype=np.int64), 1, data, edges, w, np.zeros(2))
+    assert got[0] == 0 and got[2] == 1
+    assert energy(got, data, edges, w, np.zeros(2)) == pytest.approx(1.5)
+    # With a label cost of 2 the second label does not pay: E([0,0,0]) = 3.5 < 1.5 + 2.
+    res = alpha_expansion(np.zeros(3, dtype=np.int64), data, edges, w, np.full(2, 2.0))
+    np.testing.assert_array_equal(res.labels, [0, 0, 0])
+    assert res.energy == pytest.approx(3.5 + 2.0)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 10_000), alpha=st.integers(0, 2))
+def test_skip_test_is_sound(seed, alpha):
+    labels, data, edges, w, h = random_problem(seed)
+    cut = w * (labels[edges[:, 0]] != labels[edges[:, 1]])
+    cw = np.bincount(edges[:, 0], cut, len(labels)) + np.bincount(edges[:, 1], cut, len(labels))
+    if move_cannot_improve(labels, alpha, data, cw, h):
+        _, best_e = brute_force_move(labels, alpha, data, edges, w, h)
+        assert best_e >= energy(labels, data, edges, w, h) - 1e-9
+
+
+def test_input_labels_not_modified():
+    labels, data, edges, w, h = random_problem(1)
+    before = labels.copy()
+    alpha_expansion(labels, data, edges, w, h)
+    expansion_move(labels, 1, data, edges, w, h)
+    np.testing.assert_array_equal(labels, before)
+
+
+def test_skip_test_triggers_when_current_labels_are_clearly_best():
+    labels, data, edges, w, h = random_problem(3, m=10)
+    data = np.full(data.shape, 50.0)
+    data[np.arange(10), labels] = 0.0
+    cut = w * (labels[edges[:, 0]] != labels[edges[:, 1]])
+    cw = np.bincount(edges[:, 0], cut, 10) + np.bincount(edges[:, 1], cut, 10)
+    assert move_cannot_improve(labels, 0, data, cw, h)
