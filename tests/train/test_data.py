@@ -1,0 +1,137 @@
+"""Training data: recordings with optical flow, slices, shards, seeds, the datamodule."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from evseg.errors import ConfigError, FormatError
+from evseg.train.augment import NO_AUGMENTATION, AugmentConfig, FlowSlice
+from evseg.train.data import (
+    FlowTargetDataset,
+    NormalFlowDataModule,
+    SliceSpec,
+    build_shards,
+    check_training_seeds,
+    draw_slices,
+    load_flow_recording,
+    load_shard,
+    recording_examples,
+    slice_examples,
+)
+
+EDGE_FLOW_PX_S, EDGE_SENSOR = (800.0, 300.0), (40, 30)  # as written by conftest.write_edge_recording
+
+SMALL = SliceSpec(slice_us=20_000, slices_per_scene=3, max_targets_per_slice=64, targets={"cell_px": 2})
+
+
+def test_per_event_and_dense_flow_layouts_agree(edge_recording, edge_recording_dense):
+    a = load_flow_recording(edge_recording)
+    b = load_flow_recording(edge_recording_dense)
+    assert a.sensor_size == EDGE_SENSOR
+    np.testing.assert_array_equal(a.events, b.events)
+    np.testing.assert_array_equal(a.optical_flow, b.optical_flow)
+    np.testing.assert_array_equal(a.optical_flow[0], EDGE_FLOW_PX_S)
+    assert a.normal_flow is None
+    assert set(np.unique(a.events["p"])) == {-1, 1}  # 0/1 converted
+
+
+def test_recording_errors_name_the_field(tmp_path):
+    p = tmp_path / "bad.npz"
+    np.savez(p, x=[1], y=[1], t=[0], p=[1], sensor_size=np.array([4, 4]), flow=np.zeros((2, 2)))
+    with pytest.raises(FormatError, match="'flow' has shape"):
+        load_flow_recording(p)
+    np.savez(p, x=[1], y=[1], t=[0], p=[1], sensor_size=np.array([4, 4]))
+    with pytest.raises(FormatError, match="flow_maps"):
+        load_flow_recording(p)
+    np.savez(p, x=[1], y=[1], t=[0], p=[1], flow=np.zeros((1, 2)))
+    with pytest.raises(FormatError, match="sensor_size"):
+        load_flow_recording(p)
+    (tmp_path / "junk.npz").write_bytes(b"not a zip")
+    with pytest.raises(FormatError, match="junk.npz"):
+        load_flow_recording(tmp_path / "junk.npz")
+
+
+def test_held_out_seeds_are_refused():
+    check_training_seeds([0, 999], "x")
+    with pytest.raises(ConfigError, match="held out"):
+        check_training_seeds([998, 1000], "data.train_seeds")
+    with pytest.raises(ConfigError, match="held out"):
+        NormalFlowDataModule(train_seeds=(0, 1001))
+    with pytest.raises(ConfigError, match="overlap"):
+        NormalFlowDataModule(train_seeds=(0, 10), val_seeds=(5, 6))
+
+
+def test_slices_have_the_requested_duration_after_time_scaling(edge_recording):
+    rec = load_flow_recording(edge_recording)
+    aug = AugmentConfig(rotation=False, flip=False, keep_range=(1, 1), noise_rate_range=(0, 0))
+    for s in draw_slices(rec, SMALL, aug, np.random.default_rng(1)):
+        span = int(s.events["t"][-1] - s.events["t"][0])
+        assert span <= SMALL.slice_us + 1  # +1: rounding of stretched timestamps (us)
+
+
+def test_examples_skip_targets_without_ground_truth(edge_recording):
+    rec = load_flow_recording(edge_recording)
+    of = rec.optical_flow.copy()
+    of[: len(of) // 2] = np.nan  # first half of the events: unknown flow
+    s = FlowSlice(rec.events, rec.sensor_size, None, of)
+    ex = slice_examples(s, {}, SliceSpec(max_targets_per_slice=10_000, targets={"cell_px": None}), np.random.default_rng(0))
+    assert len(ex["features"]) == len(of) - len(of) // 2
+    assert ex["features"].shape[1] == 65  # 2 d + 1 with the default d = 32
+    assert np.isfinite(ex["optical_flow"]).all() and np.isnan(ex["normal_flow"]).all()
+
+
+def test_examples_are_deterministic_per_seed(edge_recording):
+    rec = load_flow_recording(edge_recording)
+    a = recording_examples(rec, "edge", 0, {}, SMALL, AugmentConfig())
+    b = recording_examples(rec, "edge", 0, {}, SMALL, AugmentConfig())
+    c = recording_examples(rec, "edge", 1, {}, SMALL, AugmentConfig())
+    for k in a:
+        np.testing.assert_array_equal(a[k], b[k])
+    assert a["features"].shape != c["features"].shape or not np.array_equal(a["features"], c["features"])
+    # Augmentation rotates the GT optical flow with the events: its magnitude is kept
+    # (up to the time/space scale factors, within [0.8/2, 1.25*2] of the original).
+    speed = np.linalg.norm(a["optical_flow"], axis=1) / np.hypot(*EDGE_FLOW_PX_S)
+    assert np.all((speed > 0.39) & (speed < 2.6))
+
+
+def test_shards_are_built_once(edge_recording, tmp_path):
+    path = tmp_path / "cache" / "edge.npz"
+    job = ("real", str(edge_recording), 0, 0, str(path), {}, SMALL, NO_AUGMENTATION)
+    (p,) = build_shards([job], num_workers=1)
+    assert p == path and path.exists()
+    first = path.stat().st_mtime_ns
+    build_shards([job], num_workers=1)
+    assert path.stat().st_mtime_ns == first
+    rows = load_shard(path)
+    ds = FlowTargetDataset(rows)
+    batch = ds.__getitems__([0, 1, 2])
+    assert batch["features"].shape == (3, 65) and str(batch["features"].dtype) == "torch.float32"
+    np.testing.assert_allclose(batch["optical_flow"].numpy(), np.tile(EDGE_FLOW_PX_S, (3, 1)))
+
+
+def test_datamodule_with_a_real_recording_only(edge_recording, tmp_path):
+    dm = NormalFlowDataModule(
+        presets=[], real_recordings=[str(edge_recording)], real_repeats=2,
+        slices=SMALL, cache_dir=str(tmp_path / "cache"), batch_size=16, build_workers=1,
+    )
+    dm.prepare_data()
+    dm.setup("fit")
+    assert len(dm.train_set) > 0 and len(dm.val_set) == 0
+    batch = next(iter(dm.train_dataloader()))
+    assert batch["features"].shape == (16, 65)
+    with pytest.raises(ConfigError, match="not found"):
+        NormalFlowDataModule(real_recordings=[str(tmp_path / "missing.npz")])
+
+
+def test_simulated_scene_shard(tmp_path):
+    dm = NormalFlowDataModule(
+        presets=["evimo_like"], train_seeds=(0, 1), val_seeds=(900, 901), duration_us=40_000,
+        slices=SMALL, cache_dir=str(tmp_path / "cache"), batch_size=32, build_workers=1,
+    )
+    dm.setup("fit")
+    rows = dm.train_set.rows
+    assert 0 < len(rows["features"]) <= SMALL.slices_per_scene * SMALL.max_targets_per_slice
+    # Simulated targets always carry GT normal flow (noise events are never targets).
+    assert np.isfinite(rows["normal_flow"]).all()
+    assert np.all(np.linalg.norm(rows["normal_flow"], axis=1) > 0)
