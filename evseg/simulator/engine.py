@@ -26,9 +26,11 @@ def substep_count(scene: SceneInstance, cfg: SceneConfig, duration_us: int) -> i
 
 
 def _smooth_log(frame: Frame, eps: float, sigma: float) -> tuple[np.ndarray, np.ndarray]:
+    """Log intensity on the sensor (H, W) and the smoothed log image with the frame's margin."""
     log = np.log(frame.intensity + np.float32(eps))
     smooth = cv2.GaussianBlur(log, (0, 0), sigma) if sigma > 0 else log
-    return log, smooth
+    m = frame.margin
+    return log[m : log.shape[0] - m, m : log.shape[1] - m], smooth
 
 
 def simulate(
@@ -56,23 +58,25 @@ def simulate(
     n_steps = substep_count(scene, cfg, duration_us)
     times_us = np.linspace(0.0, duration_us, n_steps + 1)
     eps, sigma = sensor.log_eps, cfg.gradient_sigma_px
+    # Render beyond the sensor so the smoothing and the gradient at border pixels see the scene.
+    margin = int(np.ceil(3 * sigma)) + 1
 
-    prev = render_frame(scene, 0.0)
+    prev = render_frame(scene, 0.0, margin)
     prev_log, prev_smooth = _smooth_log(prev, eps, sigma)
     pixels = PixelArray(sensor, prev_log, child_rng(seed, "pixels"))
     chunks: list[tuple[np.ndarray, ...]] = []
     for i in range(1, n_steps + 1):
         t0, t1 = times_us[i - 1], times_us[i]
-        cur = render_frame(scene, t1 * 1e-6)
+        cur = render_frame(scene, t1 * 1e-6, margin)
         cur_log, cur_smooth = _smooth_log(cur, eps, sigma)
         cr = pixels.step(prev_log, cur_log, t0, t1)
         if len(cr.pixel):
             x = cr.pixel % width
             y = cr.pixel // width
             # Frontmost layer covering the pixel at either end of the step (depth order = index).
-            layer = np.maximum(prev.layer_map.ravel()[cr.pixel], cur.layer_map.ravel()[cr.pixel])
+            layer = np.maximum(prev.layer_map[y + margin, x + margin], cur.layer_map[y + margin, x + margin])
             flow = layer_flow(scene, layer, x, y, cr.t_us * 1e-6)
-            grad = log_gradient_at(prev_smooth, x, y) + log_gradient_at(cur_smooth, x, y)
+            grad = log_gradient_at(prev_smooth, x + margin, y + margin) + log_gradient_at(cur_smooth, x + margin, y + margin)
             nflow = project_on_gradient(flow, grad)
             label = np.array([ly.label for ly in scene.layers], np.int16)[layer]
             chunks.append((x, y, cr.t_us, cr.p, label, flow, nflow))

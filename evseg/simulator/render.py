@@ -117,7 +117,7 @@ class SceneInstance:
         return vmax
 
 
-def _texture_extent(traj: AffineTrajectory, width: int, height: int, duration_s: float, margin: float = 6.0) -> tuple[np.ndarray, np.ndarray]:
+def _texture_extent(traj: AffineTrajectory, width: int, height: int, duration_s: float, margin: float = 12.0) -> tuple[np.ndarray, np.ndarray]:
     """Bounding box (min, max) in layer coordinates of everything the frame sees over time."""
     frame = np.array([[0, 0], [width - 1, 0], [0, height - 1], [width - 1, height - 1]], float)
     pts = np.concatenate([traj.image_to_layer(frame, t) for t in np.linspace(0, duration_s, 65)])
@@ -195,10 +195,12 @@ def sample_scene(cfg: SceneConfig, seed: int, duration_us: int) -> SceneInstance
 # ----------------------------------------------------------------------------- rendering
 
 
-def _warp_layer(ly: Layer, t_s: float, width: int, height: int):
-    """Warp a layer into the frame. Returns (x0, y0, texture_roi, alpha_roi or None) or None
-    when the layer is outside the frame; objects are warped only over their bounding box."""
+def _warp_layer(ly: Layer, t_s: float, width: int, height: int, margin: int = 0):
+    """Warp a layer into a frame of (width, height) px whose pixel (0, 0) is image pixel
+    (-margin, -margin). Returns (x0, y0, texture_roi, alpha_roi or None) in frame pixels, or
+    None when the layer is outside; objects are warped only over their bounding box."""
     m = ly.trajectory.layer_to_image(t_s, ly.origin)
+    m[:, 2] += margin
     if ly.kind == "object":
         h, w = ly.texture.shape
         corners = np.array([[0, 0, 1], [w, 0, 1], [0, h, 1], [w, h, 1]], float) - [0.5, 0.5, 0]
@@ -227,20 +229,36 @@ class Frame:
 
     Attributes:
         t_s: time (s).
-        intensity: float32 (H, W) linear intensity including the global gain.
-        layer_map: int16 (H, W) index of the frontmost layer covering at least
+        intensity: float32 (H + 2 margin, W + 2 margin) linear intensity including the global
+            gain; sensor pixel (x, y) is at ``[y + margin, x + margin]``.
+        layer_map: int16, same shape: index of the frontmost layer covering at least
             ``label_coverage`` of each pixel (0 = background).
+        margin: px rendered beyond each side of the sensor (so that image gradients at the
+            sensor's border see the scene, not a padding rule).
     """
 
     t_s: float
     intensity: np.ndarray
     layer_map: np.ndarray
+    margin: int = 0
+
+    @property
+    def sensor_intensity(self) -> np.ndarray:
+        """View of ``intensity`` on the sensor, (H, W)."""
+        m = self.margin
+        return self.intensity[m : self.intensity.shape[0] - m, m : self.intensity.shape[1] - m]
+
+    @property
+    def sensor_layer_map(self) -> np.ndarray:
+        m = self.margin
+        return self.layer_map[m : self.layer_map.shape[0] - m, m : self.layer_map.shape[1] - m]
 
 
-def render_frame(scene: SceneInstance, t_s: float) -> Frame:
-    """Composite all layers at time ``t_s`` (see :class:`Frame`)."""
-    w, h = scene.width, scene.height
-    warped = [_warp_layer(ly, t_s, w, h) for ly in scene.layers]
+def render_frame(scene: SceneInstance, t_s: float, margin: int = 0) -> Frame:
+    """Composite all layers at time ``t_s`` (see :class:`Frame`), ``margin`` px beyond the
+    sensor on each side."""
+    w, h = scene.width + 2 * margin, scene.height + 2 * margin
+    warped = [_warp_layer(ly, t_s, w, h, margin) for ly in scene.layers]
     img = warped[0][2].copy()
     for wl in warped[1:]:
         if wl is None:
@@ -265,7 +283,7 @@ def render_frame(scene: SceneInstance, t_s: float) -> Frame:
             layer_map[sl][hit] = idx
             assigned[sl] |= hit
             trans[sl] *= 1.0 - alpha
-    return Frame(t_s, img * np.float32(scene.gain_at(t_s)), layer_map)
+    return Frame(t_s, img * np.float32(scene.gain_at(t_s)), layer_map, margin)
 
 
 def object_coverage(scene: SceneInstance, t_s: float) -> np.ndarray:
