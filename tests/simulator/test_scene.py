@@ -1,0 +1,84 @@
+"""Scene configs: YAML presets load into the dataclasses; bad keys and values are reported."""
+
+import dataclasses
+
+import pytest
+
+from evseg.errors import ConfigError
+from evseg.simulator import list_scene_presets, load_scene_preset, scene_from_dict, scene_to_dict, simulate
+from evseg.simulator.scene import SENSOR_PRESETS, ObjectConfig, SceneConfig, load_scene_file
+
+REQUIRED = {"eed_like", "evimo_like", "driving_like", "ego_only"}
+
+
+def test_required_presets_exist_with_their_sensors():
+    assert REQUIRED <= set(list_scene_presets())
+    sizes = {n: (load_scene_preset(n).sensor.width, load_scene_preset(n).sensor.height) for n in REQUIRED}
+    assert sizes["eed_like"] == (240, 180)
+    assert sizes["evimo_like"] == sizes["ego_only"] == (346, 260)
+    assert sizes["driving_like"][0] >= 640
+    assert set(sizes.values()) <= set(SENSOR_PRESETS.values())
+    assert load_scene_preset("ego_only").objects == ()
+    eed = load_scene_preset("eed_like")
+    assert eed.foreground and eed.foreground[0].texture.family == ("grid",)
+
+
+@pytest.mark.parametrize("name", sorted(REQUIRED | {"eed_lowlight"}))
+def test_every_preset_simulates_on_a_small_sensor(name):
+    rec = simulate(load_scene_preset(name).with_sensor_size(48, 36), seed=0, duration_us=3_000)
+    assert rec.stream.sensor_size == (48, 36)
+    assert rec.config.name == name
+
+
+def test_dict_round_trip_is_lossless():
+    for name in list_scene_presets():
+        cfg = load_scene_preset(name)
+        assert scene_from_dict(scene_to_dict(cfg)) == cfg
+
+
+def test_unknown_key_names_key_and_file(tmp_path):
+    path = tmp_path / "scene.yaml"
+    path.write_text("name: x\nsensor:\n  widht: 100\n")
+    with pytest.raises(ConfigError, match=r"scene\.yaml.*'sensor\.widht'"):
+        load_scene_file(path)
+    path.write_text("objects:\n  - count: [1, 2]\n    colour: red\n")
+    with pytest.raises(ConfigError, match=r"'objects\[0\]\.colour'"):
+        load_scene_file(path)
+
+
+@pytest.mark.parametrize("text, fragment", [
+    ("sensor: {width: many}", "'sensor.width' must be an integer"),
+    ("background: {texture: {family: marble}}", "unknown texture family 'marble'"),
+    ("objects: [{shape: [cube]}]", "unknown shape 'cube'"),
+    ("background: {motion: {speed_px_s: [300, 100]}}", "lo <= hi"),
+    ("objects: [{count: [3, 1]}]", "'objects[0].count'"),
+    ("- just\n- a list", "must be a mapping"),
+    ("sensor: {c_pos: 0}", "thresholds"),
+])
+def test_bad_values_raise_config_error(tmp_path, text, fragment):
+    path = tmp_path / "bad.yaml"
+    path.write_text(text)
+    with pytest.raises(ConfigError) as info:
+        load_scene_file(path)
+    assert fragment in str(info.value) and "bad.yaml" in str(info.value)
+
+
+def test_scalars_and_single_names_are_accepted_for_ranges_and_lists():
+    cfg = scene_from_dict({"background": {"texture": {"family": "wood", "scale_px": 12}}})
+    assert cfg.background.texture.family == ("wood",)
+    assert cfg.background.texture.scale_px == (12.0, 12.0)
+
+
+def test_unknown_preset_and_unreadable_file():
+    with pytest.raises(ConfigError, match="unknown scene preset 'nope'.*evimo_like"):
+        load_scene_preset("nope")
+    with pytest.raises(ConfigError, match="cannot read"):
+        load_scene_file("/nonexistent/scene.yaml")
+
+
+def test_with_sensor_size_keeps_everything_else():
+    cfg = load_scene_preset("evimo_like")
+    small = cfg.with_sensor_size(100, 80)
+    assert (small.sensor.width, small.sensor.height) == (100, 80)
+    assert dataclasses.replace(small, sensor=cfg.sensor) == cfg
+    assert isinstance(cfg.objects[0], ObjectConfig) and isinstance(cfg, SceneConfig)
