@@ -39,9 +39,13 @@ def log_gradient_at(log_smooth: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.
     y = np.asarray(y, np.int64)
     xm, xp = np.maximum(x - 1, 0), np.minimum(x + 1, w - 1)
     ym, yp = np.maximum(y - 1, 0), np.minimum(y + 1, h - 1)
-    s = log_smooth.astype(np.float64, copy=False)
-    gx = (3 * (s[ym, xp] - s[ym, xm]) + 10 * (s[y, xp] - s[y, xm]) + 3 * (s[yp, xp] - s[yp, xm])) / 32.0
-    gy = (3 * (s[yp, xm] - s[ym, xm]) + 10 * (s[yp, x] - s[ym, x]) + 3 * (s[yp, xp] - s[ym, xp])) / 32.0
+    s = log_smooth
+
+    def at(r, c):  # gather first, then widen: never convert the whole image
+        return s[r, c].astype(np.float64)
+
+    gx = (3 * (at(ym, xp) - at(ym, xm)) + 10 * (at(y, xp) - at(y, xm)) + 3 * (at(yp, xp) - at(yp, xm))) / 32.0
+    gy = (3 * (at(yp, xm) - at(ym, xm)) + 10 * (at(yp, x) - at(ym, x)) + 3 * (at(yp, xp) - at(ym, xp))) / 32.0
     return np.stack([gx, gy], -1)
 
 

@@ -1,0 +1,51 @@
+"""Images of events, labels and flow (evseg.visualize): exact colours where defined."""
+
+import numpy as np
+
+from evseg import visualize as vis
+
+
+def test_flow_colours_follow_direction_and_magnitude():
+    rgb = vis.flow_to_rgb(np.array([10.0, -10.0, 0.0, 0.0, 5.0, np.nan]), np.array([0.0, 0.0, 0.0, 10.0, 0.0, 1.0]), 10.0)
+    np.testing.assert_array_equal(rgb[0], [255, 0, 0])  # +x (right): red, full value
+    np.testing.assert_array_equal(rgb[1], [0, 255, 255])  # -x: cyan
+    np.testing.assert_array_equal(rgb[2], [0, 0, 0])  # still: black
+    assert rgb[3, 1] == 255 and rgb[3, 2] == 0 and 120 <= rgb[3, 0] <= 135  # +y (down), 90 deg: chartreuse
+    np.testing.assert_array_equal(rgb[4], [128, 0, 0])  # half the maximum: half value
+    np.testing.assert_array_equal(rgb[5], [0, 0, 0])  # NaN: black
+    assert vis.flow_to_rgb(np.zeros((3, 4)), np.zeros((3, 4)), 1.0).shape == (3, 4, 3)
+
+
+def test_color_wheel_legend_matches_flow_to_rgb():
+    wheel = vis.color_wheel_legend(65)
+    np.testing.assert_array_equal(wheel[32, 64], [255, 0, 0])  # right rim: +x at full value
+    np.testing.assert_array_equal(wheel[0, 0], [255, 255, 255])  # outside the disc
+    np.testing.assert_array_equal(wheel[32, 32], [0, 0, 0])  # centre: still
+
+
+def test_events_and_labels_images():
+    x, y = np.array([0, 1, 1, 2]), np.array([0, 0, 0, 1])
+    img = vis.events_to_image(x, y, np.array([1, -1, -1, 1]), (3, 2))
+    assert img.shape == (2, 3, 3) and img.dtype == np.uint8
+    np.testing.assert_array_equal(img[0, 0], vis.ON_RGB)
+    np.testing.assert_array_equal(img[0, 1], vis.OFF_RGB)
+    np.testing.assert_array_equal(img[1, 0], [255, 255, 255])
+    lab = vis.labels_to_image(x, y, np.array([0, -1, 2, 1]), (3, 2))
+    np.testing.assert_array_equal(lab[0, 0], vis.BACKGROUND_RGB)
+    np.testing.assert_array_equal(lab[0, 1], vis.label_palette(2)[1])  # last event of the pixel wins
+    np.testing.assert_array_equal(lab[1, 2], vis.label_palette(2)[0])
+
+
+def test_palette_colours_are_distinct():
+    pal = vis.label_palette(8)
+    assert len({tuple(c) for c in pal}) == 8
+
+
+def test_save_rgb_writes_rgb_order(tmp_path):
+    import cv2
+
+    img = np.zeros((4, 5, 3), np.uint8)
+    img[..., 0] = 255  # red
+    vis.save_rgb(tmp_path / "r.png", img)
+    back = cv2.imread(str(tmp_path / "r.png"))  # BGR
+    np.testing.assert_array_equal(back[0, 0], [0, 0, 255])
