@@ -131,26 +131,36 @@ class _State:
     extra: dict = field(default_factory=dict)
 
 
-def _ffill(is_set: np.ndarray, values: np.ndarray, initial: int) -> np.ndarray:
-    """Value of the last setter at or before each position (``initial`` before the first)."""
-    idx = np.where(is_set, np.arange(len(is_set)), -1)
-    np.maximum.accumulate(idx, out=idx)
-    out = np.where(idx >= 0, values[np.maximum(idx, 0)], initial)
-    return out.astype(np.int64)
+def _last_setter(setters: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """For each word index in ``at``, the position in ``setters`` (sorted word indices of the
+    words that set a state value) of the last setter at or before it; -1 if none."""
+    return np.searchsorted(setters, at, side="right") - 1
+
+
+def _state_at(setters: np.ndarray, values: np.ndarray, at: np.ndarray, initial: int) -> np.ndarray:
+    """Value of a decoder state (set by the words ``setters`` to ``values``) at words ``at``;
+    ``initial`` (the state carried from the previous block) before the first setter."""
+    k = _last_setter(setters, at)
+    if len(values) == 0:
+        return np.full(len(at), initial, dtype=np.int64)
+    return np.where(k >= 0, values[np.maximum(k, 0)], initial).astype(np.int64)
 
 
 def _unwrap_time_high(raw_high: np.ndarray, st: _State, period: int) -> np.ndarray:
     """Unwrapped TIME_HIGH counts for the TIME_HIGH words of a block (in order)."""
+    raw_high = raw_high.astype(np.int64)
     if len(raw_high) == 0:
-        return raw_high.astype(np.int64)
-    prev = np.concatenate([[st.last_raw_high], raw_high[:-1]]).astype(np.int64)
-    wraps = np.cumsum((raw_high.astype(np.int64) < prev) & (prev >= 0))
+        return raw_high
+    prev = np.concatenate([[st.last_raw_high], raw_high[:-1]])
+    wraps = np.cumsum((raw_high < prev) & (prev >= 0))
     base = st.time_high - (st.last_raw_high if st.last_raw_high >= 0 else 0)
-    return base + raw_high.astype(np.int64) + period * wraps
+    return base + raw_high + period * wraps
 
 
-def _bad_type(where: str, types: np.ndarray, known: tuple[int, ...], word_offset: int, word_bytes: int) -> None:
-    bad = np.flatnonzero(~np.isin(types, known))
+def _check_types(where: str, types: np.ndarray, known: tuple[int, ...], word_offset: int, word_bytes: int) -> None:
+    table = np.zeros(16, dtype=bool)
+    table[list(known)] = True
+    bad = np.flatnonzero(~table[types])
     if len(bad):
         i = int(bad[0])
         raise FormatError(
@@ -170,79 +180,90 @@ def decode_evt3(words: np.ndarray, st: _State, where: str, byte_offset: int) -> 
     Returns:
         ``(events, word_index)``: :data:`EVENT_DTYPE` events (t in us) in stream order and,
         for each event, the index of the word it came from.
-    """
-    w = words.astype(np.int64)
-    typ = w >> 12
-    _bad_type(where, typ, (0x0, 0x2, 0x3, 0x4, 0x5, 0x6, 0x7, 0x8, 0xA, 0xE, 0xF), byte_offset, 2)
-    payload = w & 0xFFF
-    is_y, is_x, is_base = typ == 0x0, typ == 0x2, typ == 0x3
-    is_v12, is_v8, is_tl, is_th = typ == 0x4, typ == 0x5, typ == 0x6, typ == 0x8
 
-    th_idx = np.flatnonzero(is_th)
-    th_unwrapped = np.zeros(len(w), dtype=np.int64)
-    th_unwrapped[th_idx] = _unwrap_time_high(payload[th_idx], st, 1 << 12)
-    time_high = _ffill(is_th, th_unwrapped, st.time_high)
-    time_low = _ffill(is_tl, payload, st.time_low)
+    Each state (y, TIME_HIGH, TIME_LOW, vector base and polarity) is looked up only at the
+    event words, as the value of the last word that set it (binary search over the setters).
+    """
+    typ = (words >> 12).astype(np.intp)
+    _check_types(where, typ, (0x0, 0x2, 0x3, 0x4, 0x5, 0x6, 0x7, 0x8, 0xA, 0xE, 0xF), byte_offset, 2)
+    payload = (words & 0xFFF).astype(np.int64)
+    is_x, is_v12, is_v8 = typ == 0x2, typ == 0x4, typ == 0x5
+    y_w, base_w = np.flatnonzero(typ == 0x0), np.flatnonzero(typ == 0x3)
+    tl_w, th_w = np.flatnonzero(typ == 0x6), np.flatnonzero(typ == 0x8)
+    rel = np.flatnonzero(is_x | is_v12 | is_v8)
+
+    th_unwrapped = _unwrap_time_high(payload[th_w], st, 1 << 12)
+    time_high = _state_at(th_w, th_unwrapped, rel, st.time_high)
+    time_low = _state_at(tl_w, payload[tl_w], rel, st.time_low)
     t = (time_high << 12) | time_low
-    y = _ffill(is_y, payload & 0x7FF, st.y)
+    y = _state_at(y_w, payload[y_w] & 0x7FF, rel, st.y)
 
     # Vector base: the last VECT_BASE_X plus 12 / 8 for every vector word since then.
-    inc = np.where(is_v12, 12, 0) + np.where(is_v8, 8, 0)
-    cum_excl = np.cumsum(inc) - inc
-    base_val = _ffill(is_base, payload & 0x7FF, st.base_x)
-    base_cum = _ffill(is_base, cum_excl, 0)
-    base_x = base_val + cum_excl - base_cum
-    vect_pol = _ffill(is_base, payload >> 11, st.vect_pol)
+    inc = np.where(is_v12[rel], 12, 0) + np.where(is_v8[rel], 8, 0)
+    done = np.concatenate([[0], np.cumsum(inc)])  # done[j]: increments of event words before j
+    base_val = _state_at(base_w, payload[base_w] & 0x7FF, rel, st.base_x)
+    if len(base_w):
+        k = _last_setter(base_w, rel)
+        done_at_base = done[np.searchsorted(rel, base_w, side="right")]  # increments before each base word
+        since = done[:-1] - np.where(k >= 0, done_at_base[np.maximum(k, 0)], 0)
+    else:
+        since = done[:-1]
+    base_x = base_val + since
+    vect_pol = _state_at(base_w, payload[base_w] >> 11, rel, st.vect_pol)
 
-    rel = np.flatnonzero(is_x | is_v12 | is_v8)
-    bits = np.arange(12)
-    mask = np.where(is_x[rel], 1, np.where(is_v12[rel], payload[rel], payload[rel] & 0xFF))
-    valid = ((mask[:, None] >> bits) & 1).astype(bool)
-    x0 = np.where(is_x[rel], payload[rel] & 0x7FF, base_x[rel])
-    pol = np.where(is_x[rel], payload[rel] >> 11, vect_pol[rel])
+    p_rel = payload[rel]
+    is_x_rel = is_x[rel]
+    mask = np.where(is_x_rel, 1, np.where(is_v12[rel], p_rel, p_rel & 0xFF))
+    valid = ((mask[:, None] >> np.arange(12)) & 1).astype(bool)
+    x0 = np.where(is_x_rel, p_rel & 0x7FF, base_x)
+    pol = np.where(is_x_rel, p_rel >> 11, vect_pol)
     r, b = np.nonzero(valid)
-    word = rel[r]
-    ev = np.empty(len(r), dtype=EVENT_DTYPE)
     x = x0[r] + b
     if len(x) and x.max() > 65535:  # only reachable with corrupt vector words
         i = int(np.argmax(x > 65535))
-        raise FormatError(f"{where}: vector event x={int(x[i])} at byte offset {byte_offset + 2 * int(word[i])} is not a pixel")
+        raise FormatError(
+            f"{where}: vector event x={int(x[i])} at byte offset {byte_offset + 2 * int(rel[r[i]])} is not a pixel"
+        )
+    ev = np.empty(len(r), dtype=EVENT_DTYPE)
     ev["x"] = x
-    ev["y"] = y[word]
-    ev["t"] = t[word]
+    ev["y"] = y[r]
+    ev["t"] = t[r]
     ev["p"] = np.where(pol[r] > 0, 1, -1)
 
-    if len(w):
-        st.time_high = int(time_high[-1])
-        if len(th_idx):
-            st.last_raw_high = int(payload[th_idx[-1]])
-        st.time_low, st.y = int(time_low[-1]), int(y[-1])
-        st.base_x = int(base_x[-1] + inc[-1])
-        st.vect_pol = int(vect_pol[-1])
-    return ev, word
+    # State after the block.
+    if len(th_w):
+        st.time_high, st.last_raw_high = int(th_unwrapped[-1]), int(payload[th_w[-1]])
+    if len(tl_w):
+        st.time_low = int(payload[tl_w[-1]])
+    if len(y_w):
+        st.y = int(payload[y_w[-1]] & 0x7FF)
+    if len(base_w):
+        last = int(base_w[-1])
+        st.base_x = int(payload[last] & 0x7FF)
+        st.vect_pol = int(payload[last] >> 11)
+        after = rel > last
+    else:
+        after = np.ones(len(rel), dtype=bool)
+    st.base_x += int(inc[after].sum())
+    return ev, rel[r]
 
 
 def decode_evt2(words: np.ndarray, st: _State, where: str, byte_offset: int) -> tuple[np.ndarray, np.ndarray]:
     """Decode a block of EVT 2.0 uint32 words (see :func:`decode_evt3` for the contract)."""
-    w = words.astype(np.int64)
-    typ = w >> 28
-    _bad_type(where, typ, (0x0, 0x1, 0x8, 0xA, 0xE, 0xF), byte_offset, 4)
-    is_cd, is_th = typ <= 1, typ == 0x8
-    th_idx = np.flatnonzero(is_th)
-    th_unwrapped = np.zeros(len(w), dtype=np.int64)
-    th_unwrapped[th_idx] = _unwrap_time_high(w[th_idx] & 0x0FFFFFFF, st, 1 << 28)
-    time_high = _ffill(is_th, th_unwrapped, st.time_high)
-    cd = np.flatnonzero(is_cd)
+    typ = (words >> 28).astype(np.intp)
+    _check_types(where, typ, (0x0, 0x1, 0x8, 0xA, 0xE, 0xF), byte_offset, 4)
+    th_w = np.flatnonzero(typ == 0x8)
+    cd = np.flatnonzero(typ <= 1)
+    th_unwrapped = _unwrap_time_high(words[th_w] & 0x0FFFFFFF, st, 1 << 28)
+    time_high = _state_at(th_w, th_unwrapped, cd, st.time_high)
+    wc = words[cd].astype(np.int64)
     ev = np.empty(len(cd), dtype=EVENT_DTYPE)
-    wc = w[cd]
-    ev["t"] = (time_high[cd] << 6) | ((wc >> 22) & 0x3F)
+    ev["t"] = (time_high << 6) | ((wc >> 22) & 0x3F)
     ev["x"] = (wc >> 11) & 0x7FF
     ev["y"] = wc & 0x7FF
     ev["p"] = np.where(typ[cd] == 1, 1, -1)
-    if len(w):
-        st.time_high = int(time_high[-1])
-        if len(th_idx):
-            st.last_raw_high = int(w[th_idx[-1]] & 0x0FFFFFFF)
+    if len(th_w):
+        st.time_high, st.last_raw_high = int(th_unwrapped[-1]), int(words[th_w[-1]] & 0x0FFFFFFF)
     return ev, cd
 
 

@@ -113,6 +113,12 @@ class TextSource:
             names = [t.strip().lower() for t in line.decode("ascii").replace(",", " ").split()]
         except UnicodeDecodeError:
             raise FormatError(f"{self._where}: line {n}: not ASCII text") from None
+        known = {a for aliases in _ALIASES.values() for a in aliases}
+        if sum(nm in known for nm in names) < 4:
+            raise FormatError(
+                f"{self._where}: line {n}: expected 't x y p' numbers or a csv header naming the "
+                f"t, x, y, p columns, got {line[:80]!r}"
+            )
         cols = []
         for key in "txyp":
             hits = [i for i, nm in enumerate(names) if nm in _ALIASES[key]]

@@ -1,0 +1,23 @@
+"""The io benchmark's vectorised encoders agree with the readers (no timing assertions)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from evseg.io import read_events
+from evseg.io.bench import benchmark, synthetic_events, write_synthetic
+
+
+@pytest.mark.parametrize("fmt", ["evt2", "evt3", "es", "text", "npz", "h5"])
+def test_synthetic_files_read_back(tmp_path, fmt):
+    ev = synthetic_events(5000, 640, 480, rate_ev_s=2e4)  # sparse: gaps over 127 us (.es overflows)
+    ev["t"] += 2**24 - 100_000  # crosses the EVT3 24-bit wrap
+    s = read_events(write_synthetic(fmt, ev, tmp_path, (640, 480)))
+    np.testing.assert_array_equal(s.events, ev)
+
+
+def test_benchmark_rows_name_the_input_size():
+    rows = benchmark(repeats=1, quick=True)
+    assert [r["format"] for r in rows] == ["evt3", "evt2", "es", "h5", "npz", "text"]
+    assert all(r["events"] == 200_000 and r["read_s"] > 0 for r in rows)
