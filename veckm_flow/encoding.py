@@ -9,13 +9,15 @@ with ``A`` a fixed random ``(3, d)`` matrix, entries ``N(0, 1) * alpha`` drawn f
 ``numpy.random.default_rng(seed)`` (rows: x, y, t). Because ``p_j - p_i`` is relative, the sum
 factorises into ``exp(-i A^T p_i) * sum_j exp(i A^T p_j)``: the second factor is a box sum of the
 per-pixel complex field ``F(x, y) = sum_{j at (x, y)} exp(i A^T p_j)`` (method.md section 3).
-The box sum is done in two passes over the pixel grid (running sums along each row, then along
-each column of the row-box sums), so a target costs O(d) whatever the window size, and the whole
-encoding costs O(N d + W H d + T d): linear in events, no N x N adjacency.
+The box sum is one pass down the pixel grid: running sums along each row give the row-box sums,
+which are accumulated down each column; a target's window sum is the difference of that column
+sum at the window's last row and at the row above its first. So a
+target costs O(d) whatever the window size, and the whole encoding costs
+O(N d + W H d + T d): linear in events, no N x N adjacency.
 
-Precision: the field uses complex64. The column running sums only accumulate row-box sums
-(bounded by the events of a ``2k+1`` pixel wide strip), not the whole image as a 2-D
-summed-area table would, so float32 rounding stays far below one event's contribution.
+Precision: float32 (complex64). The column running sums only accumulate row-box sums (bounded
+by the events of a ``2k+1`` pixel wide strip), not the whole image as a 2-D summed-area table
+would, so float32 rounding stays far below one event's contribution.
 
 Time: ``t`` enters only through differences; internally it is taken relative to the slice's
 first event (integer microseconds, exact) and the per-event phase ``exp(i a_t t / t_scale_us)``
@@ -237,38 +239,63 @@ def encode_targets(
     t = events["t"]
     t0 = int(t.min())
     dt = t - t0  # int64 us, exact
-    hi, lo = time_phase_tables(cfg, int(dt.max()), matrix)
+    hi, lo = (_planar(a) for a in time_phase_tables(cfg, int(dt.max()), matrix))
     x = np.ascontiguousarray(x)
     y = np.ascontiguousarray(y)
-    field, count, row_used = _workspace(height, width, cfg.d)
+    field, count, row_used, cum, ccum = _workspace(height, width, cfg.d)
     nblk = numba.get_num_threads()
     _kernels.scatter(x, y, dt, hi, lo, _LO_BITS, field, count, row_used, nblk)
-    _kernels.row_pass(field, count, row_used, phase_xy, cfg.window_px)
-    _kernels.column_pass(field, count, row_used, nblk)
-    return _kernels.gather_targets(
-        x, y, dt, targets, field, count, phase_xy, hi, lo, _LO_BITS, cfg.window_px
-    )
+    pxy = _planar_phase(phase_xy)
+    _kernels.box_pass(field, count, row_used, pxy, cfg.window_px, cum, ccum, nblk)
+    # Visiting targets in row order walks the box-sum grid forward instead of at random.
+    order = np.argsort(y[targets], kind="stable")
+    tx, ty, tdt = x[targets[order]].astype(np.int64), y[targets[order]].astype(np.int64), dt[targets[order]]
+    acc, cnt = _kernels.window_sums(cum, ccum, cfg.window_px, tx, ty)
+    feats = _kernels.finish_features(acc, cnt, tx, ty, tdt, pxy, hi, lo, _LO_BITS)
+    out = np.empty_like(feats)
+    out[order] = feats
+    return out
 
 
 _WORKSPACE: dict = {}
+_PLANAR_PHASE: dict = {}
 
 
-def _workspace(height: int, width: int, d: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Reused per-shape buffers: field (H, W, d) complex64 (no need to zero, see _kernels),
-    count (H, W) int32 and row flags (H,), zeroed here. Not thread-safe: one slice at a time
-    per process (the kernels themselves run multi-threaded)."""
+def _planar(a: np.ndarray) -> np.ndarray:
+    """complex (..., d) -> float32 (..., 2, d): real and imaginary planes (see _kernels)."""
+    return np.ascontiguousarray(np.stack([a.real, a.imag], axis=-2), dtype=np.float32)
+
+
+def _planar_phase(phase_xy: np.ndarray) -> np.ndarray:
+    """:func:`_planar` of a spatial phase table, cached by identity (the tables are cached
+    and reused, and converting one costs about as much as encoding a slice)."""
+    key = id(phase_xy)
+    hit = _PLANAR_PHASE.get(key)
+    if hit is None or hit[0] is not phase_xy:
+        _PLANAR_PHASE.clear()
+        hit = _PLANAR_PHASE[key] = (phase_xy, _planar(phase_xy))
+    return hit[1]
+
+
+def _workspace(height: int, width: int, d: int) -> tuple[np.ndarray, ...]:
+    """Reused per-shape buffers: field and box sums (H, W, 2, d) float32 (planar complex) and
+    their counts (H, W) int32 (need no zeroing, see _kernels), event counts (H, W) int32 and
+    row flags (H,), zeroed here. Not thread-safe: one slice at a time per process (the kernels
+    themselves run multi-threaded)."""
     key = (height, width, d)
     if key not in _WORKSPACE:
         _WORKSPACE.clear()  # keep one sensor's buffers only
         _WORKSPACE[key] = (
-            np.empty((height, width, d), np.complex64),
+            np.empty((height, width, 2, d), np.float32),
             np.empty((height, width), np.int32),
             np.empty(height, np.bool_),
+            np.empty((height, width, 2, d), np.float32),
+            np.empty((height, width), np.int32),
         )
-    field, count, row_used = _WORKSPACE[key]
+    field, count, row_used, cum, ccum = _WORKSPACE[key]
     count.fill(0)
     row_used.fill(False)
-    return field, count, row_used
+    return field, count, row_used, cum, ccum
 
 
 def encode_targets_reference(

@@ -1,0 +1,171 @@
+"""Per-event normal flow of a recording, slice by slice.
+
+Reads the recording in time slices (``--window-ms``, constant memory), picks target events in
+each slice (``--targets cell``: the latest event of each ``--cell-px`` cell; ``all``: every
+event), estimates their normal flow with the learned model (default: the shipped ONNX model,
+``--model`` for another) or the plane-fit baseline (``--baseline``), and writes ``--out`` (.npz,
+atomically) with one row per target event:
+
+- ``index`` int64: position of the event in the input recording (0-based, file order)
+- ``nx``, ``ny`` float32: normal flow in px/s of the sensor's pixel grid (x = column,
+  y = row, row 0 at the top); NaN where the baseline rejected the fit
+- ``uncertainty`` float32: larger = less certain (predicted angular error, radians; inf where
+  rejected)
+
+plus ``sensor_size`` (int64 [width, height]), ``window_us`` and ``method`` / ``config`` (JSON
+of the estimator, model file and settings used). ``--video`` renders a normal-flow colour-wheel
+video (one frame per slice, hue = direction, brightness = speed up to ``--max-px-s``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+HELP = "per-event normal flow (px/s) of a recording, learned (ONNX) or plane-fit baseline -> flow.npz"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("recording", type=Path, help="event recording (any supported format)")
+    p.add_argument("--out", type=Path, required=True, help="output .npz (index, nx, ny, uncertainty)")
+    p.add_argument("--model", type=Path, default=None, help="ONNX normal-flow model (default: the shipped one)")
+    p.add_argument("--baseline", action="store_true", help="use the plane-fit baseline instead of the model")
+    p.add_argument("--calib", type=Path, default=None, help="calibration YAML (default: the file's own, if any)")
+    p.add_argument("--window-ms", type=float, default=20.0, help="slice duration (ms); neighbours come from the same slice")
+    p.add_argument("--targets", choices=["cell", "all"], default="cell", help="which events get a flow")
+    p.add_argument("--cell-px", type=int, default=2, help="cell side (px) for --targets cell")
+    p.add_argument("--threads", type=int, default=None, help="onnxruntime threads (default: all cores)")
+    p.add_argument("--video", type=Path, default=None, help="also write a colour-wheel flow video (.mp4)")
+    p.add_argument("--max-px-s", type=float, default=None,
+                   help="flow speed shown at full brightness in the video (default: 95th percentile)")
+    p.add_argument("--format", default=None, help="override format detection")
+    p.add_argument("--sensor-size", default=None, help="WIDTHxHEIGHT when the file has none")
+    p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+
+
+def _estimator(args: argparse.Namespace):
+    from evseg.veckm_flow import OnnxNormalFlow, PlaneFitNormalFlow
+
+    if args.baseline:
+        if args.model is not None:
+            from evseg.errors import EvsegError
+
+            raise EvsegError("--baseline and --model exclude each other")
+        est = PlaneFitNormalFlow()
+        return est, {"method": "planefit", "planefit": {k: getattr(est, k) for k in est.__dataclass_fields__}}
+    est = OnnxNormalFlow(args.model, threads=args.threads)
+    return est, {"method": "learned", "model": str(est.model_path), "encoding": est.cfg.to_dict()}
+
+
+def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from evseg.calibration import load_calibration
+    from evseg.errors import EvsegError
+    from evseg.io import open_recording, parse_sensor_size
+    from evseg.io._atomic import atomic_path
+    from evseg.veckm_flow import NormalFlow, select_targets
+    from evseg.windows import stream_time_windows
+
+    if args.window_ms <= 0:
+        raise EvsegError(f"--window-ms must be positive, got {args.window_ms}")
+    if args.cell_px < 1:
+        raise EvsegError(f"--cell-px must be at least 1, got {args.cell_px}")
+    window_us = max(1, int(round(args.window_ms * 1000)))
+    est, info = _estimator(args)
+    sensor = parse_sensor_size(args.sensor_size) if args.sensor_size else None
+    t_start = time.perf_counter()
+    parts: list[NormalFlow] = []
+    frames: list[tuple[np.ndarray, NormalFlow]] = []
+    with open_recording(args.recording, format=args.format, sensor_size=sensor) as rec:
+        if rec.sensor_size is None:
+            # Unknown sensor size: infer it from the whole file first (one extra pass).
+            for _ in rec.chunks():
+                pass
+            if rec.sensor_size is None:
+                raise EvsegError(f"{args.recording}: no events, and no --sensor-size given")
+        sensor_size = rec.sensor_size
+        calibration = load_calibration(args.calib) if args.calib is not None else rec.calibration
+        if calibration is not None and tuple(calibration.sensor_size) != tuple(sensor_size):
+            raise EvsegError(
+                f"{args.calib or args.recording}: calibration is for {calibration.sensor_size[0]}x"
+                f"{calibration.sensor_size[1]}, the recording is {sensor_size[0]}x{sensor_size[1]}"
+            )
+        windows = stream_time_windows(rec.chunks(), window_us)
+        if not args.no_progress:
+            from tqdm import tqdm
+
+            windows = tqdm(windows, desc="normal flow", unit="slice", file=sys.stderr)
+        n_events = 0
+        for win in windows:
+            ev = win.events
+            n_events += len(ev)
+            if len(ev) == 0:
+                continue
+            targets = None if args.targets == "all" else select_targets(ev, sensor_size, cell_px=args.cell_px)
+            flow = est(ev, sensor_size, targets, calibration)
+            parts.append(flow.shifted(win.first_event))
+            if args.video is not None:
+                frames.append((ev[flow.index], flow))
+    flow = NormalFlow.concatenate(parts)
+    elapsed = time.perf_counter() - t_start
+    info.update(
+        {"recording": str(args.recording), "window_us": window_us, "targets": args.targets,
+         "cell_px": args.cell_px if args.targets == "cell" else None,
+         "calibration": str(args.calib) if args.calib else ("file" if calibration is not None else None)}
+    )
+    with atomic_path(args.out) as tmp:
+        with open(tmp, "wb") as f:
+            np.savez(
+                f, index=flow.index.astype(np.int64), nx=flow.nx.astype(np.float32), ny=flow.ny.astype(np.float32),
+                uncertainty=flow.uncertainty.astype(np.float32), sensor_size=np.asarray(sensor_size, np.int64),
+                window_us=np.int64(window_us), method=np.str_(info["method"]), config=np.str_(json.dumps(info)),
+            )
+    if args.video is not None:
+        _write_video(args.video, frames, sensor_size, window_us, args.max_px_s)
+    valid = float(np.mean(flow.valid)) if len(flow) else 0.0
+    print(
+        f"{args.out}: {len(flow)} normal flows ({valid:.1%} valid) for {n_events} events, "
+        f"{info['method']}, {elapsed:.2f} s ({len(flow) / max(elapsed, 1e-9):,.0f} flows/s incl. reading)"
+    )
+    return 0
+
+
+def _write_video(path: Path, frames, sensor_size, window_us: int, max_px_s: float | None) -> None:
+    """One frame per slice: flow colours at the target pixels, colour-wheel legend, time."""
+    import cv2
+    import numpy as np
+
+    from evseg.errors import EvsegError
+    from evseg.io._atomic import atomic_path
+    from evseg.visualize import color_wheel_legend, flow_events_to_image
+
+    if max_px_s is None:
+        speeds = np.concatenate([np.hypot(f.nx, f.ny)[f.valid] for _, f in frames]) if frames else np.zeros(0)
+        max_px_s = float(np.percentile(speeds, 95)) if len(speeds) else 1.0
+    max_px_s = max(round(max_px_s, 0), 1.0)
+    w, h = sensor_size
+    scale = max(1, int(np.ceil(360 / max(h, 1))))  # small sensors are enlarged for viewing
+    legend = color_wheel_legend(size=min(96, max(48, h * scale // 3)), max_px_s=max_px_s)
+    fps = float(min(60.0, max(1.0, 1e6 / window_us)))
+    size = (w * scale, h * scale)
+    with atomic_path(path) as tmp:
+        tmp_mp4 = tmp.with_name(tmp.name + ".mp4")  # OpenCV picks the container from the suffix
+        writer = cv2.VideoWriter(str(tmp_mp4), cv2.VideoWriter_fourcc(*"mp4v"), fps, size)
+        if not writer.isOpened():
+            raise EvsegError(f"{path}: OpenCV cannot open an mp4 writer here")
+        try:
+            for i, (ev, flow) in enumerate(frames):
+                img = flow_events_to_image(ev["x"], ev["y"], np.stack([flow.nx, flow.ny], 1), sensor_size, max_px_s)
+                img = cv2.resize(img, size, interpolation=cv2.INTER_NEAREST)
+                lh, lw = legend.shape[:2]
+                img[-lh:, -lw:] = legend
+                cv2.putText(img, f"slice {i}  {i * window_us / 1e3:.0f} ms", (4, 14), cv2.FONT_HERSHEY_SIMPLEX,
+                            0.4, (0, 0, 0), 1, cv2.LINE_AA)
+                writer.write(np.ascontiguousarray(img[..., ::-1]))  # RGB -> BGR
+        finally:
+            writer.release()
+        tmp_mp4.replace(tmp)
