@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from evseg.errors import FormatError
+from evseg.io._atomic import atomic_path
 
 LABEL_DTYPE = np.dtype("<i2")
 UNASSIGNED = -1
@@ -128,11 +129,9 @@ class ResultWriter:
             self.add_unassigned(self.n_events - self.n_written)
         n_total = self.n_written
         self._label_file.close()
-        fd, tmp_name = tempfile.mkstemp(prefix=".result-", suffix=".npz", dir=self.path.parent)
-        os.close(fd)
-        tmp = Path(tmp_name)
         try:
-            with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_STORED, allowZip64=True) as zf:
+            with atomic_path(self.path) as tmp, \
+                    zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_STORED, allowZip64=True) as zf:
                 _write_npy_from_file(zf, "label", self._label_path, LABEL_DTYPE, (n_total,))
                 arrays = {
                     "window_t0_us": np.asarray(self._t0, dtype=np.int64),
@@ -150,9 +149,7 @@ class ResultWriter:
                 for key, arr in arrays.items():
                     with zf.open(f"{key}.npy", "w", force_zip64=True) as f:
                         np.lib.format.write_array(f, arr, allow_pickle=False)
-            tmp.replace(self.path)
         finally:
-            tmp.unlink(missing_ok=True)
             self._label_path.unlink(missing_ok=True)
         return self.path
 

@@ -1,0 +1,329 @@
+"""The end-to-end streaming pipeline: raw events in, per-event labels, boxes and masks out.
+
+Per window (default 10 ms, back to back):
+
+1. normal flow on target events (learned ONNX model by default, plane-fit baseline, or
+   precomputed per-event flow from a file),
+2. optional undistortion of positions and normal flows (with a calibration),
+3. segmentation of the normal flow (pre-processing, initialization with motion prediction
+   from the previous window, alternating labeling and fitting),
+4. persistent object ids (predicted boxes matched across windows),
+5. labels for every event of the window: the label of its nearest graph node, -1 where no
+   node is close enough.
+
+Example::
+
+    from evseg.pipeline import MotionSegmentationPipeline, PipelineConfig
+    pipe = MotionSegmentationPipeline(PipelineConfig(window_us=10_000), sensor_size=(346, 260))
+    for res in pipe.run(stream):          # an EventStream, e.g. from evseg.io.read_events
+        print(res.index, res.boxes)       # {object id: (x0, y0, x1, y1)}
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Callable, Iterable, Iterator, Protocol
+
+import numpy as np
+
+from evseg.calibration import Calibration
+from evseg.errors import ConfigError, EvsegError
+from evseg.events import EventStream
+from evseg.tracking import ObjectTracker
+from evseg.windows import Window, stream_time_windows
+
+
+class NormalFlowLike(Protocol):
+    index: np.ndarray
+    nx: np.ndarray
+    ny: np.ndarray
+    uncertainty: np.ndarray
+
+
+FlowFn = Callable[[np.ndarray, tuple[int, int]], NormalFlowLike]
+
+
+@dataclass(frozen=True)
+class PipelineConfig:
+    """Settings of the streaming pipeline (segmentation settings live in ``segmentation``).
+
+    Attributes:
+        window_us: window duration in microseconds (paper: 10 ms on EVIMO).
+        stride_us: time between window starts; None = ``window_us`` (back to back).
+        flow: ``"learned"`` (ONNX model), ``"planefit"`` (classical baseline) or
+            ``"precomputed"`` (flow given to :meth:`MotionSegmentationPipeline.run`).
+        model_path: ONNX model for ``flow="learned"``; None = the model shipped with evseg.
+        threads: onnxruntime threads (None = onnxruntime's default).
+        target_cell_px: normal flow is computed for the latest event of each square cell of
+            this side (px); None computes it for every event. The segmentation keeps one node
+            per ``segmentation.cell_px`` cell, so cells smaller than that lose nothing.
+        segmentation: a :class:`evseg.segmentation.SegmentationConfig` (None = defaults).
+    """
+
+    window_us: int = 10_000
+    stride_us: int | None = None
+    flow: str = "learned"
+    model_path: str | None = None
+    threads: int | None = None
+    target_cell_px: int | None = 2
+    segmentation: object | None = None
+
+    def __post_init__(self) -> None:
+        if self.flow not in ("learned", "planefit", "precomputed"):
+            raise ConfigError(f"pipeline.flow must be learned, planefit or precomputed, got {self.flow!r}")
+        if int(self.window_us) <= 0:
+            raise ConfigError(f"pipeline.window_us must be positive, got {self.window_us}")
+        if self.stride_us is not None and int(self.stride_us) <= 0:
+            raise ConfigError(f"pipeline.stride_us must be positive, got {self.stride_us}")
+
+
+@dataclass
+class WindowResult:
+    """Everything the pipeline knows about one window.
+
+    Attributes:
+        index, t0_us, t1_us: window number and bounds (us).
+        first_event: position of the window's first event in the input.
+        events: the window's events (a view).
+        labels: int16 per event of the window: -1 unassigned, 0 background, k object id.
+        boxes: object id -> (x0, y0, x1, y1) inclusive px.
+        masks: object id -> bool (height, width) dense mask.
+        flow_index, flow: positions (in ``events``) and (nx, ny) px/s of the target flows.
+        segmentation: the raw :class:`evseg.segmentation` result (labels 1..K, models).
+        timings_ms: stage -> milliseconds.
+    """
+
+    index: int
+    t0_us: int
+    t1_us: int
+    first_event: int
+    events: np.ndarray
+    labels: np.ndarray
+    boxes: dict[int, tuple[int, int, int, int]]
+    masks: dict[int, np.ndarray]
+    flow_index: np.ndarray
+    flow: np.ndarray
+    segmentation: object | None
+    timings_ms: dict[str, float] = field(default_factory=dict)
+
+
+def undistort_normal_flow(
+    calibration: Calibration, x: np.ndarray, y: np.ndarray, nx: np.ndarray, ny: np.ndarray, eps_px: float = 0.5
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Map positions and normal flows (px, px/s) into undistorted pixel coordinates.
+
+    With J the local Jacobian of the undistortion and g the unit normal direction, the
+    optical flow maps as u' = J u and the gradient direction as g' ~ J^-T g, so the normal
+    flow's magnitude along g' is (u . g) / |J^-T g| = |n| / |J^-T g|: computable from n alone.
+    """
+    x = np.asarray(x, np.float64)
+    y = np.asarray(y, np.float64)
+    xs = np.concatenate([x, x + eps_px, x, x])
+    ys = np.concatenate([y, y, y + eps_px, y])
+    ux, uy = calibration.undistort(xs, ys)
+    n = len(x)
+    xu, yu = ux[:n], uy[:n]
+    j11, j21 = (ux[n : 2 * n] - xu) / eps_px, (uy[n : 2 * n] - yu) / eps_px
+    j12, j22 = (ux[2 * n : 3 * n] - xu) / eps_px, (uy[2 * n : 3 * n] - yu) / eps_px
+    det = j11 * j22 - j12 * j21
+    mag = np.hypot(nx, ny)
+    gx, gy = nx / np.maximum(mag, 1e-12), ny / np.maximum(mag, 1e-12)
+    # J^-T g with J^-1 = [[j22, -j12], [-j21, j11]] / det
+    hx = (j22 * gx - j21 * gy) / det
+    hy = (-j12 * gx + j11 * gy) / det
+    hn = np.hypot(hx, hy)
+    scale = mag / np.maximum(hn, 1e-12)
+    return xu, yu, (scale * hx / hn).astype(np.float32), (scale * hy / hn).astype(np.float32)
+
+
+class MotionSegmentationPipeline:
+    """Segment an event stream window by window (see module docstring).
+
+    Args:
+        config: pipeline settings.
+        sensor_size: (width, height) px.
+        calibration: optional; positions and flows are undistorted before segmentation.
+        flow_fn: override the normal-flow estimator: ``flow_fn(events, sensor_size)`` returning
+            an object with ``index``, ``nx``, ``ny``, ``uncertainty`` (index into ``events``).
+    """
+
+    def __init__(
+        self,
+        config: PipelineConfig = PipelineConfig(),
+        sensor_size: tuple[int, int] | None = None,
+        calibration: Calibration | None = None,
+        flow_fn: FlowFn | None = None,
+    ):
+        from evseg.segmentation import SegmentationConfig
+
+        if sensor_size is None:
+            raise ConfigError("the pipeline needs the sensor size (width, height)")
+        self.config = config if config.segmentation is not None else replace(config, segmentation=SegmentationConfig())
+        self.sensor_size = (int(sensor_size[0]), int(sensor_size[1]))
+        self.calibration = calibration
+        self._flow_fn = flow_fn if flow_fn is not None else self._make_flow_fn()
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the previous window (motion prediction) and the object tracks."""
+        self._previous = None
+        self._tracker = ObjectTracker()
+
+    def _make_flow_fn(self) -> FlowFn | None:
+        cfg = self.config
+        if cfg.flow == "precomputed":
+            return None
+        from evseg.veckm_flow import select_targets
+
+        if cfg.flow == "planefit":
+            from evseg.veckm_flow import PlaneFitNormalFlow
+
+            est = PlaneFitNormalFlow()
+        else:
+            from evseg.veckm_flow import OnnxNormalFlow
+
+            est = OnnxNormalFlow(model_path=cfg.model_path, threads=cfg.threads)
+
+        def flow_fn(events: np.ndarray, sensor_size: tuple[int, int]):
+            targets = select_targets(events, sensor_size, cell_px=cfg.target_cell_px)
+            # Flow is estimated in raw sensor pixels; undistortion happens after (process()).
+            return est(events, sensor_size, targets)
+
+        return flow_fn
+
+    # ------------------------------------------------------------------ one window
+    def process(self, window: Window, flow: NormalFlowLike | None = None) -> WindowResult:
+        """Segment one window. ``flow`` (indices into ``window.events``) overrides the estimator."""
+        from evseg.segmentation import propagate_labels, segment_normal_flow
+
+        timings: dict[str, float] = {}
+        ev = window.events
+        t_start = time.perf_counter()
+        if flow is None:
+            if self._flow_fn is None:
+                raise EvsegError("pipeline.flow is 'precomputed' but no flow was given for this window")
+            flow = self._flow_fn(ev, self.sensor_size)
+        timings["flow"] = (time.perf_counter() - t_start) * 1e3
+
+        idx = np.asarray(flow.index, dtype=np.int64)
+        nx = np.asarray(flow.nx, dtype=np.float32)
+        ny = np.asarray(flow.ny, dtype=np.float32)
+        unc = np.asarray(flow.uncertainty, dtype=np.float32) if flow.uncertainty is not None else None
+        ok = np.isfinite(nx) & np.isfinite(ny) & ((nx != 0) | (ny != 0))
+        idx, nx, ny = idx[ok], nx[ok], ny[ok]
+        unc = unc[ok] if unc is not None else None
+        fx = ev["x"][idx].astype(np.float64)
+        fy = ev["y"][idx].astype(np.float64)
+        ft = ev["t"][idx]
+        t0 = time.perf_counter()
+        if self.calibration is not None:
+            fx, fy, nx, ny = undistort_normal_flow(self.calibration, fx, fy, nx, ny)
+        timings["undistort"] = (time.perf_counter() - t0) * 1e3
+
+        seg = segment_normal_flow(
+            fx, fy, ft, nx, ny, uncertainty=unc, config=self.config.segmentation,
+            sensor_size=self.sensor_size, previous=self._previous,
+        )
+        for k, v in getattr(seg, "timings", {}).items():
+            timings[k] = v
+        self._previous = seg
+
+        t0 = time.perf_counter()
+        mapping = self._tracker.update({int(k): tuple(v) for k, v in seg.boxes.items()})
+        ex, ey = ev["x"].astype(np.float64), ev["y"].astype(np.float64)
+        if self.calibration is not None and len(ev):
+            ex, ey = self.calibration.undistort(ex, ey)
+        seg_labels = propagate_labels(seg, ex, ey)  # -1 beyond segmentation.max_propagation_px
+        # Per-window labels 1..K -> persistent object ids (0 and -1 unchanged).
+        lut = np.arange(-1, seg.n_objects + 1, dtype=np.int64)
+        for label, oid in mapping.items():
+            lut[label + 1] = oid
+        labels = lut[seg_labels + 1].astype(np.int16)
+        boxes = {mapping[int(k)]: tuple(int(c) for c in v) for k, v in seg.boxes.items()}
+        masks = {mapping[int(k)]: v for k, v in (getattr(seg, "masks", None) or {}).items()}
+        timings["propagation"] = (time.perf_counter() - t0) * 1e3
+        self._predict_tracks(seg, mapping)
+        return WindowResult(
+            index=window.index, t0_us=window.t0_us, t1_us=window.t1_us, first_event=window.first_event,
+            events=ev, labels=labels, boxes=boxes, masks=masks, flow_index=idx,
+            flow=np.stack([nx, ny], axis=-1), segmentation=seg, timings_ms=timings,
+        )
+
+    def _predict_tracks(self, seg, mapping: dict[int, int]) -> None:
+        """Move each tracked box by its model's flow at the box centre over one stride."""
+        from evseg.segmentation.motion_model import flow_field
+
+        dt_s = (self.config.stride_us or self.config.window_us) * 1e-6
+        disp = {}
+        ox, oy = seg.origin_px
+        for label, oid in mapping.items():
+            x0, y0, x1, y1 = seg.boxes[label]
+            cx, cy = np.array([(x0 + x1) / 2.0 - ox]), np.array([(y0 + y1) / 2.0 - oy])
+            u, v = flow_field(np.asarray(seg.models[label : label + 1]), cx, cy)
+            disp[oid] = (float(u[0, 0]) * dt_s, float(v[0, 0]) * dt_s)
+        self._tracker.predict(disp, self.sensor_size)
+
+    # ------------------------------------------------------------------ streams
+    def run(
+        self,
+        source: EventStream | Iterable[np.ndarray],
+        precomputed_flow: dict[str, np.ndarray] | None = None,
+    ) -> Iterator[WindowResult]:
+        """Segment a whole stream (an EventStream or an iterable of sorted event chunks).
+
+        ``precomputed_flow``: the arrays of an ``evseg flow`` file (``index`` into the whole
+        input, ``nx``, ``ny`` px/s, optional ``uncertainty``), sorted by ``index``.
+        """
+        chunks = [source.events] if isinstance(source, EventStream) else source
+        cfg = self.config
+        for window in stream_time_windows(chunks, cfg.window_us, cfg.stride_us):
+            flow = None
+            if precomputed_flow is not None:
+                flow = _slice_flow(precomputed_flow, window.first_event, len(window.events))
+            yield self.process(window, flow)
+
+
+@dataclass
+class _FlowSlice:
+    index: np.ndarray
+    nx: np.ndarray
+    ny: np.ndarray
+    uncertainty: np.ndarray | None
+
+
+def _slice_flow(flow: dict[str, np.ndarray], first: int, n: int) -> _FlowSlice:
+    """Rows of a precomputed flow file that fall into events [first, first + n)."""
+    index = flow["index"]
+    a, b = np.searchsorted(index, [first, first + n])
+    unc = flow.get("uncertainty")
+    return _FlowSlice(index[a:b] - first, flow["nx"][a:b], flow["ny"][a:b], None if unc is None else unc[a:b])
+
+
+def load_flow_file(path: str | Path, n_events: int | None = None) -> dict[str, np.ndarray]:
+    """Load per-event normal flow (``evseg flow`` schema) and check it; sorted by index."""
+    from evseg.errors import FormatError
+
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            data = {k: z[k] for k in z.files}
+    except (OSError, ValueError) as exc:
+        raise FormatError(f"{path}: cannot read flow file ({exc})") from None
+    for key in ("index", "nx", "ny"):
+        if key not in data:
+            raise FormatError(f"{path}: flow file has no key '{key}' (expected index, nx, ny[, uncertainty])")
+    n = len(data["index"])
+    for key in ("nx", "ny", "uncertainty"):
+        if key in data and len(data[key]) != n:
+            raise FormatError(f"{path}: key '{key}' has {len(data[key])} rows, 'index' has {n}")
+    index = data["index"].astype(np.int64)
+    if n and (index.min() < 0 or (n_events is not None and index.max() >= n_events)):
+        bad = int(index.min()) if index.min() < 0 else int(index.max())
+        raise FormatError(f"{path}: key 'index' has value {bad} outside the recording's {n_events} events")
+    order = np.argsort(index, kind="stable")
+    out = {"index": index[order], "nx": data["nx"][order].astype(np.float32), "ny": data["ny"][order].astype(np.float32)}
+    if "uncertainty" in data:
+        out["uncertainty"] = data["uncertainty"][order].astype(np.float32)
+    return out

@@ -1,0 +1,126 @@
+"""The `evseg segment` job: recording in, result.npz (+ video) out. The I/O edge of the pipeline.
+
+Everything with side effects lives here (opening files, the progress bar, writing results and
+videos); the pipeline itself (:mod:`evseg.pipeline`) only returns values.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from evseg.errors import ConfigError, FormatError
+
+
+@dataclass(frozen=True)
+class SegmentJob:
+    """What `evseg segment` was asked to do (see its --help for each field)."""
+
+    recording: Path
+    out: Path
+    format: str | None = None
+    topic: str | None = None
+    sensor_size: str | tuple[int, int] | None = None
+    calib: Path | None = None
+    config: str | None = None
+    window_ms: float = 10.0
+    stride_ms: float | None = None
+    flow_file: Path | None = None
+    flow_method: str = "learned"
+    model: Path | None = None
+    threads: int | None = None
+    masks: bool = False
+    video: Path | None = None
+    frames: Path | None = None
+    progress: bool = True
+
+
+def build_pipeline_config(job: SegmentJob):
+    """Pipeline settings from the job: window, flow method and the segmentation preset/file."""
+    from evseg.pipeline import PipelineConfig
+    from evseg.segmentation import SegmentationConfig, load_segmentation_config
+
+    if job.window_ms <= 0:
+        raise ConfigError(f"--window-ms must be positive, got {job.window_ms}")
+    seg = load_segmentation_config(job.config) if job.config else SegmentationConfig()
+    return PipelineConfig(
+        window_us=int(round(job.window_ms * 1000)),
+        stride_us=None if job.stride_ms is None else int(round(job.stride_ms * 1000)),
+        flow="precomputed" if job.flow_file is not None else job.flow_method,
+        model_path=None if job.model is None else str(job.model),
+        threads=job.threads,
+        segmentation=seg,
+    )
+
+
+def config_yaml(config) -> str:
+    import yaml
+
+    d = asdict(config)
+    return yaml.safe_dump(d, sort_keys=False)
+
+
+def run_segment_job(job: SegmentJob) -> str:
+    """Run the job; returns a one-paragraph summary for the terminal."""
+    from tqdm import tqdm
+
+    from evseg.calibration import load_calibration
+    from evseg.io import open_recording
+    from evseg.io.recording import parse_sensor_size
+    from evseg.overlay import VideoSink, label_overlay
+    from evseg.pipeline import MotionSegmentationPipeline, load_flow_file
+    from evseg.results import ResultWriter
+
+    cfg = build_pipeline_config(job)  # config errors surface before any work
+    calibration = load_calibration(job.calib) if job.calib is not None else None
+    sensor_size = parse_sensor_size(job.sensor_size) if isinstance(job.sensor_size, str) else job.sensor_size
+    with open_recording(job.recording, format=job.format, topic=job.topic, sensor_size=sensor_size) as rec:
+        if rec.sensor_size is None:
+            raise ConfigError(f"{job.recording}: the file does not give the sensor size; pass --sensor-size WxH")
+        if calibration is None:
+            calibration = rec.calibration
+        flow = load_flow_file(job.flow_file) if job.flow_file is not None else None
+        pipe = MotionSegmentationPipeline(cfg, sensor_size=rec.sensor_size, calibration=calibration)
+        stride_us = cfg.stride_us or cfg.window_us
+        n_windows = n_objects = 0
+        ids: set[int] = set()
+        with ResultWriter(job.out, None, rec.sensor_size, config_yaml(cfg), with_masks=job.masks) as writer, \
+                VideoSink(job.video, job.frames) as sink, \
+                tqdm(desc="segment", unit="win", disable=not job.progress) as bar:
+            seen = [0]
+
+            def counted(chunks):
+                for c in chunks:
+                    seen[0] += len(c)
+                    yield c
+
+            for res in pipe.run(counted(rec.chunks()), precomputed_flow=flow):
+                # Events before this window and not in any earlier one (gaps when stride > window).
+                if res.first_event > writer.n_written:
+                    writer.add_unassigned(res.first_event - writer.n_written)
+                # This window owns its events up to the start of the next window.
+                own = int(np.searchsorted(res.events["t"], res.t0_us + stride_us, side="left"))
+                skip = writer.n_written - res.first_event  # already labelled by an overlapping window
+                if own > skip:
+                    writer.add_labels(res.labels[skip:own])
+                writer.add_window(res.t0_us, res.t1_us, res.boxes, res.masks if job.masks else None)
+                if job.video is not None or job.frames is not None:
+                    sink.add(label_overlay(res.events, res.labels, res.boxes, rec.sensor_size,
+                                           title=f"{res.t0_us / 1e3:.1f} ms"))
+                n_windows += 1
+                n_objects += len(res.boxes)
+                ids.update(res.boxes)
+                bar.update(1)
+            writer.add_unassigned(seen[0] - writer.n_written)  # events after the last window
+            if flow is not None and len(flow["index"]) and flow["index"][-1] >= writer.n_written:
+                raise FormatError(
+                    f"{job.flow_file}: key 'index' refers to event {int(flow['index'][-1])} but "
+                    f"{job.recording} has {writer.n_written} events (flow of another recording?)"
+                )
+    return (
+        f"wrote {job.out}: {writer.n_written} events, {n_windows} windows, "
+        f"{len(ids)} distinct objects, {n_objects / max(n_windows, 1):.2f} objects per window"
+        + (f"; video {job.video}" if job.video else "")
+    )
