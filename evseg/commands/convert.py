@@ -27,6 +27,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--topic", default=None, help="ROS bag topic of the dvs_msgs/EventArray messages")
     p.add_argument("--sensor-size", default=None, metavar="WxH",
                    help="sensor size in px, e.g. 346x260 (overrides the input's)")
+    p.add_argument("--time-unit", choices=["s", "us"], default=None,
+                   help="text/csv only: unit of the time column (default: s if it has a decimal point)")
     p.add_argument("--sort", action="store_true",
                    help="accept unsorted timestamps and sort them (loads the whole recording)")
 
@@ -53,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
         raise EvsegError(f"{args.output}: output is the input file; choose another name")
     size = parse_sensor_size(args.sensor_size) if args.sensor_size else None
     with open_recording(args.input, format=args.format, topic=args.topic,
-                        sensor_size=size, sort=args.sort) as rec:
+                        sensor_size=size, sort=args.sort, time_unit=args.time_unit) as rec:
         counted = [0]
 
         def chunks():

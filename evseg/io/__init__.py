@@ -60,8 +60,9 @@ def open_recording(
         topic: ROS bag topic of the ``dvs_msgs/EventArray`` messages (default: the only one).
         sensor_size: ``(width, height)`` in px; overrides the file's, or supplies it when the
             file has none (otherwise it is inferred as max + 1 by :meth:`Recording.read_all`).
-        chunk_events: events per yielded chunk (a bound on memory; some formats yield
-            smaller chunks at their packet boundaries).
+        chunk_events: approximate events per yielded chunk, the bound on memory (bags and
+            AEDAT4 cut at message/packet boundaries; EVT3 reads this many 16-bit words, which
+            decode to fewer events except in dense vector bursts).
         sort: accept unsorted timestamps and sort them (loads the whole recording).
         time_unit: text/csv only: ``"s"`` or ``"us"`` for the time column (default: seconds
             when the first time value has a decimal point or exponent, else microseconds).

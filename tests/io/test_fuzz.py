@@ -124,3 +124,45 @@ def test_misnamed_files_of_every_other_format(tmp_path, request):
                 pytest.fail(f"{fmt} named {suffix}: {type(exc).__name__}: {exc}")
             else:
                 pytest.fail(f"{fmt} named {suffix} was read without complaint")
+
+
+from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+_HEADERS = {
+    ".raw2": b"% evt 2.0\n% geometry 64x48\n",
+    ".raw3": b"% evt 3.0\n% geometry 64x48\n",
+    ".es": b"Event Stream" + bytes([2, 0, 0, 1, 64, 0, 48, 0]),
+}
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(kind=st.sampled_from(sorted(_HEADERS)), body=st.binary(max_size=400))
+def test_random_binary_payloads(tmp_path, kind, body):
+    """Any bytes after a valid header: a valid recording or an EvsegError, nothing else."""
+    p = tmp_path / ("x.raw" if kind.startswith(".raw") else "x.es")
+    p.write_bytes(_HEADERS[kind] + body)
+    try:
+        s = read_events(p)
+    except EvsegError:
+        return
+    validate_events(s.events, s.sensor_size)
+
+
+_token = st.one_of(
+    st.integers(-5, 70).map(str), st.floats(allow_nan=True, allow_infinity=True).map(repr),
+    st.sampled_from(["", "x", "1e309", "0x10", "--", "1,2", "#"]),
+)
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(lines=st.lists(st.lists(_token, min_size=0, max_size=5).map(" ".join), max_size=8),
+       sep=st.sampled_from([" ", ",", "\t"]))
+def test_random_text_lines(tmp_path, lines, sep):
+    p = tmp_path / "x.txt"
+    p.write_text("\n".join(line.replace(" ", sep) for line in lines))
+    try:
+        s = read_events(p, sensor_size=(64, 48))
+    except EvsegError:
+        return
+    validate_events(s.events, s.sensor_size)
