@@ -42,9 +42,9 @@ class SegmentationConfig:
     """
 
     # --- pre-processing (nodes and graph) ---------------------------------------------
-    cell_px: float = 4.0
-    """Side of the square cell (px) that keeps one node; 4 px gives ~1.5 k nodes on a
-    346x260 sensor with dense edges. 0 keeps every flow (duplicate positions still merged)."""
+    cell_px: float = 3.0
+    """Side of the square cell (px) that keeps one node; 3 px gives ~1.5 k nodes for a 10 ms
+    window of a textured 346x260 scene. 0 keeps every flow (duplicate positions still merged)."""
     node_window_us: int | None = None
     """Only flows with t >= t_max - node_window_us become nodes (the latest slice of the
     window); None uses every flow given."""
@@ -62,7 +62,7 @@ class SegmentationConfig:
     # --- data term ---------------------------------------------------------------------
     residual_scale_px_s: float = 2.0
     """Floor of the residual scale sigma (px/s)."""
-    residual_scale_rel: float = 0.08
+    residual_scale_rel: float = 0.2
     """sigma = max(residual_scale_px_s, residual_scale_rel * median |n| of the nodes):
     the residual scale follows the speed of the scene, so one setting serves slow indoor
     and fast outdoor data."""
@@ -77,7 +77,7 @@ class SegmentationConfig:
     long edges across empty space (between separate objects) are cheap to cut."""
     edge_scale_px: float = 12.0
     """Length (px) up to which a Delaunay edge has full Potts weight ('distance' weighting)."""
-    lambda_m: float = 60.0
+    lambda_m: float = 20.0
     """Label cost (Delong et al. 2012) paid once per motion model in use (sigma^2 units)."""
 
     # --- optimisation ------------------------------------------------------------------
@@ -112,22 +112,26 @@ class SegmentationConfig:
     """Translation vector of a node for fast sampling: 'local' = least-squares translation of
     its Delaunay 1-ring (resolves the aperture problem; see initialization.py), 'normal' = its
     normal flow as such (the paper's wording)."""
-    sampling_bins: int = 12
-    """Fast sampling histogram: bins per axis over the flow vectors' range."""
-    min_candidate_separation: float = 0.15
-    """Sampled translations differ by at least this share of the flows' robust range."""
+    sampling_bin: float = 4.0
+    """Fast sampling counts translation vectors in square bins of sampling_bin * sigma (px/s)."""
+    min_candidate_separation: float = 4.0
+    """Sampled translations differ by at least min_candidate_separation * sigma (px/s)."""
     prediction_margin_px: float = 8.0
     """Motion prediction: the box of an object is grown by this margin (px) each side."""
     min_prediction_nodes: int = 8
     """Motion prediction: a predicted box needs this many nodes to fit a candidate."""
 
     # --- outputs -----------------------------------------------------------------------
+    max_object_extent: float = 0.5
+    """A cluster whose main connected part has a box covering more than this share of the
+    sensor is a background layer (a net or fence in front of the scene, with its own
+    parallax), not an object: its nodes join the background (needs the sensor size)."""
     min_object_nodes: int = 6
     """Objects (IMOs) with fewer nodes are set to -1 (unassigned) in the result."""
     mask_method: str = "hull"
     """'hull': convex hull of the object's nodes, dilated by mask_dilate_px; 'dilate':
     the object's nodes rasterised and dilated by cell_px/2 + mask_dilate_px, holes closed."""
-    mask_dilate_px: float = 2.0
+    mask_dilate_px: float = 0.0
     """Extra growth (px) of the dense mask: nodes sit on edges, the silhouette a bit outside."""
     max_propagation_px: float = 12.0
     """propagate_labels gives -1 to points farther than this (px) from every node."""
@@ -141,11 +145,11 @@ class SegmentationConfig:
                      "lambda_p", "lambda_m", "lm_damping", "mask_dilate_px", "merge_tol"):
             if getattr(self, name) < 0:
                 raise ConfigError(f"SegmentationConfig.{name} must be >= 0, got {getattr(self, name)}")
-        for name in ("truncation", "uncertainty_scale", "edge_scale_px", "robust_scale",
+        for name in ("truncation", "uncertainty_scale", "sampling_bin", "max_object_extent", "edge_scale_px", "robust_scale",
                      "max_propagation_px", "model_tol_px_s"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"SegmentationConfig.{name} must be > 0, got {getattr(self, name)}")
-        for name in ("max_rounds", "expansion_cycles", "lm_iterations", "n_sampled", "sampling_bins"):
+        for name in ("max_rounds", "expansion_cycles", "lm_iterations", "n_sampled"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"SegmentationConfig.{name} must be >= 1, got {getattr(self, name)}")
         if self.residual_scale_px_s == 0 and self.residual_scale_rel == 0:

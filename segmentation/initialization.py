@@ -1,7 +1,10 @@
 """Initialization (paper Sec. III-D): fast sampling and motion prediction of candidate models.
 
 * Fast sampling: n normal flows with clearly different translation vectors each give a
-  candidate (rho = 1, theta = 0, t = that flow's translation vector).
+  candidate (rho = 1, theta = 0, t = that flow's translation vector). "Clearly different" and
+  "typical" are made deterministic by counting the vectors in bins of a few residual scales
+  (sigma) and taking bin means from the most populated bin down, skipping any closer than the
+  minimum separation to one already taken.
 
   The translation vector of a node (``sampling_flow = 'local'``, default) is the translation
   that best explains the normal flows of the node and its Delaunay neighbours (least squares
@@ -10,12 +13,8 @@
   |u| sin(angle) away from the motion itself; its 1-ring sees several gradient directions and
   resolves the aperture problem, so an object's nodes vote for (nearly) one vector. Nodes
   whose ring is ill-conditioned (all gradients parallel) do not vote.
-  ``sampling_flow = 'normal'`` uses the normal flow itself, as the paper's text reads. "Clearly different" and "typical" are made
-  deterministic with a 2D histogram of the flow vectors: bins are visited from the most to
-  the least populated, and a bin's mean flow becomes a candidate when it lies at least
-  ``min_separation`` (a share of the flows' robust range) from every candidate taken so far.
-  Populated bins first means random outlier flows, which scatter over many sparse bins,
-  rarely become candidates.
+  ``sampling_flow = 'normal'`` uses the normal flow itself, as the paper's text reads. Populated bins first means random outlier flows, which
+  scatter over many sparse bins, rarely become candidates.
 * Motion prediction: each independently moving object (IMO) of the previous window is grown
   into a box (the box of its nodes plus ``margin_px`` on every side), the box is moved by the
   object's model flow at the box centre times the time between the windows, and a candidate is
@@ -73,44 +72,44 @@ def fast_sampling(
     nx: np.ndarray,
     ny: np.ndarray,
     n: int,
-    bins: int = 12,
-    min_separation: float = 0.15,
+    bin_px_s: float,
+    min_separation_px_s: float,
 ) -> np.ndarray:
-    """Up to ``n`` translation candidates from distinct, frequent normal-flow vectors.
+    """Up to ``n`` translation candidates from distinct, frequent flow vectors.
+
+    The flow vectors are counted in square bins of ``bin_px_s`` over the whole flow plane (no
+    range clipping, so a small fast object keeps its own bin); bins are visited from the most
+    to the least populated and a bin's mean vector is taken when it lies at least
+    ``min_separation_px_s`` from every vector taken so far.
 
     Args:
-        nx, ny: (M,) normal flow of the nodes, px/s.
+        nx, ny: (M,) flow vectors (normal flows or 1-ring translations), px/s.
         n: number of candidates wanted; fewer come back when the flows are not that varied.
-        bins: histogram bins per axis over the flows' 2nd-98th percentile box.
-        min_separation: minimum distance between candidates as a share of that box's side.
     Returns:
-        (n', 4) models (1, 0, t_x, t_y), n' <= n, most frequent flow first.
+        (n', 4) models (1, 0, t_x, t_y), n' <= n, most frequent first.
     """
     nx = np.asarray(nx, dtype=np.float64)
     ny = np.asarray(ny, dtype=np.float64)
     if len(nx) == 0 or n < 1:
         return np.empty((0, 4))
-    lo = np.array([np.percentile(nx, 2), np.percentile(ny, 2)])
-    hi = np.array([np.percentile(nx, 98), np.percentile(ny, 98)])
-    span = max(float((hi - lo).max()), 1e-9)
-    ix = np.clip(((nx - lo[0]) / span * bins).astype(np.int64), 0, bins - 1)
-    iy = np.clip(((ny - lo[1]) / span * bins).astype(np.int64), 0, bins - 1)
-    key = ix * bins + iy
-    count = np.bincount(key, minlength=bins * bins)
-    occupied = np.flatnonzero(count)
-    mean_x = np.bincount(key, weights=nx, minlength=bins * bins)[occupied] / count[occupied]
-    mean_y = np.bincount(key, weights=ny, minlength=bins * bins)[occupied] / count[occupied]
-    order = np.argsort(-count[occupied], kind="stable")
-    taken: list[tuple[float, float]] = []
-    min_d = min_separation * span
-    for o in order:
-        cx, cy = mean_x[o], mean_y[o]
-        if all((cx - px) ** 2 + (cy - py) ** 2 >= min_d * min_d for px, py in taken):
-            taken.append((cx, cy))
+    ix = np.floor(nx / bin_px_s).astype(np.int64)
+    iy = np.floor(ny / bin_px_s).astype(np.int64)
+    ix -= ix.min()
+    iy -= iy.min()
+    _, key, count = np.unique(ix * (int(iy.max()) + 1) + iy, return_inverse=True, return_counts=True)
+    key = key.ravel()
+    mean_x = np.bincount(key, weights=nx) / count
+    mean_y = np.bincount(key, weights=ny) / count
+    order = np.argsort(-count, kind="stable")
+    taken = np.empty((0, 2))
+    d2 = min_separation_px_s ** 2
+    for o in order:  # loop over occupied bins until n candidates: bounded by n * (bins skipped)
+        c = np.array([mean_x[o], mean_y[o]])
+        if len(taken) == 0 or np.min(((taken - c) ** 2).sum(axis=1)) >= d2:
+            taken = np.vstack([taken, c])
             if len(taken) == n:
                 break
-    t = np.array(taken, dtype=np.float64).reshape(-1, 2)
-    return np.column_stack([np.ones(len(t)), np.zeros(len(t)), t])
+    return np.column_stack([np.ones(len(taken)), np.zeros(len(taken)), taken])
 
 
 def predict_boxes(

@@ -20,7 +20,10 @@ Order of the steps (our choice where the paper is silent):
    than ``model_tol_px_s``.
 5. The label with the most nodes is the background (label 0); the others are independently
    moving objects 1..K by decreasing node count; objects under ``min_object_nodes`` nodes
-   become -1 (unassigned).
+   become -1 (unassigned). A cluster spread over more than ``max_object_extent`` of the sensor
+   (box of its main connected part) is a background layer - e.g. a net in front of the scene,
+   which the EED ground truth counts as background - and joins label 0 (the model of label 0
+   stays the largest cluster's).
 """
 
 from __future__ import annotations
@@ -36,7 +39,7 @@ from evseg.segmentation.energy import data_costs, energy, potts_weights
 from evseg.segmentation.expansion import alpha_expansion
 from evseg.segmentation.fitting import fit_lm
 from evseg.segmentation.initialization import fast_sampling, local_translations, motion_prediction
-from evseg.segmentation.motion_model import model_change_px_s
+from evseg.segmentation.motion_model import flow_field, model_change_px_s
 from evseg.segmentation.outputs import nearest_node_labels, object_regions, region_box, region_mask
 from evseg.segmentation.preprocessing import build_node_graph
 
@@ -63,7 +66,8 @@ class SegmentationResult:
         n_candidates: candidate models at the start (predicted + sampled).
         n_predicted: candidates that came from motion prediction.
         sigma_px_s: residual scale used, px/s.
-        t_ref_us: reference time of the window (median node time), microseconds.
+        t_ref_us: reference time of the window (middle of the nodes' time span), microseconds;
+            boxes and masks show the objects at this time (nodes moved along their model).
         sensor_size: (width, height) or None.
         timings: ms per stage: 'preprocessing', 'initialization', 'labeling_fitting', 'outputs'.
         max_propagation_px: distance limit used by :func:`propagate_labels`.
@@ -168,7 +172,8 @@ def segment_normal_flow(
     sigma = max(cfg.residual_scale_px_s, cfg.residual_scale_rel * float(np.median(norm))) if m else 1.0
     edge_w = potts_weights(graph.edge_length, cfg.lambda_p, cfg.potts_weighting, cfg.edge_scale_px)
     radius = float(np.sqrt(np.max(xr * xr + yr * yr))) if m else 1.0
-    t_ref = int(np.median(graph.t)) if m else 0
+    # Reference time: the middle of the flows' time span (the window's mid-time).
+    t_ref = int((graph.t.min() + graph.t.max()) // 2) if m else 0
     timings["preprocessing"] = (time.perf_counter() - tic) * 1e3
 
     tic = time.perf_counter()
@@ -197,7 +202,7 @@ def segment_normal_flow(
         tx, ty, ok = local_translations(graph.nx, graph.ny, graph.edges)
         # Every node votes when no 1-ring is well conditioned (e.g. one straight edge).
         vx, vy = (tx[ok], ty[ok]) if ok.any() else (tx, ty)
-    sampled = fast_sampling(vx, vy, n_sample, cfg.sampling_bins, cfg.min_candidate_separation)
+    sampled = fast_sampling(vx, vy, n_sample, cfg.sampling_bin * sigma, cfg.min_candidate_separation * sigma)
     models = np.concatenate([predicted, sampled]) if m else np.empty((0, 4))
     n_candidates = len(models)
     timings["initialization"] = (time.perf_counter() - tic) * 1e3
@@ -256,12 +261,29 @@ def segment_normal_flow(
     tic = time.perf_counter()
     n_obj = max(len(models) - 1, 0)
     regions = object_regions(labels, graph.edges, n_obj)
+    if sensor_size is not None and n_obj:
+        area = float(sensor_size[0] * sensor_size[1])
+        layers = [k for k, nodes in regions.items()
+                  if np.ptp(graph.x[nodes]) * np.ptp(graph.y[nodes]) > cfg.max_object_extent * area]
+        if layers:
+            keep = np.setdiff1d(np.arange(len(models)), layers)
+            remap = np.full(len(models), -1, dtype=np.int64)
+            remap[keep] = np.arange(len(keep))
+            remap[layers] = 0
+            labels = np.where(labels >= 0, remap[np.maximum(labels, 0)], -1)
+            models = models[keep]
+            n_obj = len(models) - 1
+            regions = object_regions(labels, graph.edges, n_obj)
     boxes, masks = {}, {}
-    for k, nodes in regions.items():
-        boxes[k] = region_box(graph.x[nodes], graph.y[nodes], cfg.mask_dilate_px, sensor_size)
+    for k, nodes in regions.items():  # loop over objects (a handful), arrays inside
+        # Motion compensation: move each node along its object's flow to the window's mid-time,
+        # so a fast object's region is its outline at t_ref, not the smear over the window.
+        ux, uy = flow_field(models[k : k + 1], xr[nodes], yr[nodes])
+        dt_s = (t_ref - graph.t[nodes]) * 1e-6
+        px, py = graph.x[nodes] + ux[:, 0] * dt_s, graph.y[nodes] + uy[:, 0] * dt_s
+        boxes[k] = region_box(px, py, cfg.mask_dilate_px, sensor_size)
         if sensor_size is not None:
-            masks[k] = region_mask(graph.x[nodes], graph.y[nodes], sensor_size, cfg.mask_method,
-                                   cfg.mask_dilate_px, cfg.cell_px)
+            masks[k] = region_mask(px, py, sensor_size, cfg.mask_method, cfg.mask_dilate_px, cfg.cell_px)
     timings["outputs"] = (time.perf_counter() - tic) * 1e3
     return SegmentationResult(
         node_index=graph.index, node_x=graph.x, node_y=graph.y, node_t=graph.t,

@@ -1,0 +1,40 @@
+"""SegmentationConfig validation and YAML presets."""
+
+import pytest
+
+from evseg.errors import ConfigError
+from evseg.segmentation import SegmentationConfig, load_segmentation_config
+from evseg.segmentation.config import preset_names
+
+
+def test_presets_load():
+    assert set(preset_names()) >= {"eed_like", "evimo_like", "outdoor_like"}
+    for name in preset_names():
+        cfg = load_segmentation_config(name)
+        assert isinstance(cfg, SegmentationConfig)
+    assert load_segmentation_config("outdoor_like").cell_px == 6.0
+
+
+def test_unknown_key_names_file_and_field(tmp_path):
+    p = tmp_path / "bad.yaml"
+    p.write_text("cell_px: 3\nlamda_m: 5\n")
+    with pytest.raises(ConfigError, match="lamda_m") as exc:
+        load_segmentation_config(p)
+    assert "bad.yaml" in str(exc.value)
+
+
+def test_wrong_types_and_values(tmp_path):
+    p = tmp_path / "c.yaml"
+    p.write_text("lambda_p: fast\n")
+    with pytest.raises(ConfigError, match="lambda_p"):
+        load_segmentation_config(p)
+    p.write_text("robust_loss: tukey\n")
+    with pytest.raises(ConfigError, match="robust_loss"):
+        load_segmentation_config(p)
+    p.write_text("origin_px: [1, 2]\nmax_rounds: 3\nlambda_m: 7\n")
+    cfg = load_segmentation_config(p)
+    assert cfg.origin_px == (1.0, 2.0) and cfg.max_rounds == 3 and cfg.lambda_m == 7.0
+    with pytest.raises(ConfigError):
+        SegmentationConfig(max_rounds=0)
+    with pytest.raises(ConfigError, match="unknown segmentation preset"):
+        load_segmentation_config("nope")

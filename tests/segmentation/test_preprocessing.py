@@ -1,0 +1,92 @@
+"""Node selection (one flow per cell) and the Delaunay graph, including degenerate inputs."""
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from evseg.segmentation.preprocessing import build_node_graph, delaunay_edges, select_nodes
+
+
+def test_one_node_per_cell_latest_wins_without_uncertainty():
+    x = np.array([0.5, 1.5, 2.0, 5.0, 5.5])
+    y = np.array([0.5, 1.0, 2.5, 0.0, 0.2])
+    t = np.array([10, 30, 20, 5, 5])
+    n = np.full(5, 10.0)
+    idx = select_nodes(x, y, t, n, n, None, cell_px=4.0)
+    # cell (0,0) holds flows 0,1,2 -> latest t=30 is flow 1; cell (1,0) holds 3,4 (same t) -> larger index
+    np.testing.assert_array_equal(idx, [1, 4])
+
+
+def test_most_certain_flow_wins_then_latest():
+    x = np.array([0.0, 1.0, 2.0])
+    y = np.zeros(3)
+    t = np.array([1, 2, 3])
+    n = np.full(3, 10.0)
+    idx = select_nodes(x, y, t, n, n, np.array([0.1, 0.05, 0.2]), cell_px=4.0)
+    np.testing.assert_array_equal(idx, [1])
+
+
+def test_invalid_slow_uncertain_and_old_flows_are_dropped():
+    x = np.arange(6) * 10.0
+    y = np.zeros(6)
+    t = np.array([0, 100, 200, 300, 400, 500])
+    nx = np.array([np.nan, 0.5, 10.0, 10.0, 10.0, 10.0])
+    ny = np.zeros(6)
+    unc = np.array([0.0, 0.0, 0.0, 0.5, 0.0, 0.0])
+    idx = select_nodes(x, y, t, nx, ny, unc, cell_px=4.0, min_flow_px_s=1.0, max_uncertainty=0.3,
+                       node_window_us=250)
+    np.testing.assert_array_equal(idx, [4, 5])  # 0 NaN, 1 slow, 3 uncertain, 2 older than 250 us
+
+
+def test_cell_zero_merges_exact_duplicates_only():
+    x = np.array([1.0, 1.0, 1.25])
+    y = np.array([2.0, 2.0, 2.0])
+    idx = select_nodes(x, y, np.array([1, 2, 3]), np.ones(3) * 5, np.ones(3), None, cell_px=0.0)
+    np.testing.assert_array_equal(idx, [1, 2])
+
+
+def test_delaunay_degenerate_cases():
+    assert delaunay_edges(np.array([]), np.array([])).shape == (0, 2)
+    assert delaunay_edges(np.array([1.0]), np.array([1.0])).shape == (0, 2)
+    np.testing.assert_array_equal(delaunay_edges(np.array([0.0, 1.0]), np.array([0.0, 1.0])), [[0, 1]])
+    # collinear: a chain in order along the line
+    e = delaunay_edges(np.array([0.0, 2.0, 1.0, 3.0]), np.array([0.0, 2.0, 1.0, 3.0]))
+    np.testing.assert_array_equal(e, [[0, 2], [1, 2], [1, 3]])
+    # a triangle
+    np.testing.assert_array_equal(delaunay_edges(np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0])),
+                                  [[0, 1], [0, 2], [1, 2]])
+
+
+def test_square_with_centre():
+    x = np.array([0.0, 2.0, 2.0, 0.0, 1.0])
+    y = np.array([0.0, 0.0, 2.0, 2.0, 1.0])
+    e = delaunay_edges(x, y)
+    # 4 sides + 4 spokes to the centre
+    assert len(e) == 8
+    assert {tuple(r) for r in e} >= {(0, 4), (1, 4), (2, 4), (3, 4)}
+
+
+@settings(max_examples=60, deadline=None)
+@given(n=st.integers(0, 40), seed=st.integers(0, 1000), grid=st.booleans())
+def test_graph_edges_are_unique_ordered_and_connected(n, seed, grid):
+    rng = np.random.default_rng(seed)
+    if grid:  # integer pixels with many duplicates and collinear runs
+        x = rng.integers(0, 5, n).astype(float)
+        y = rng.integers(0, 3, n).astype(float)
+    else:
+        x, y = rng.uniform(0, 50, n), rng.uniform(0, 50, n)
+    g = build_node_graph(x, y, np.arange(n), np.full(n, 3.0), np.full(n, -4.0), cell_px=1.0)
+    m = len(g)
+    e = g.edges
+    assert e.dtype == np.int64 and e.shape[1] == 2
+    assert np.all(e[:, 0] < e[:, 1]) and np.all(e[:, 1] < max(m, 1))
+    assert len(np.unique(e, axis=0)) == len(e)
+    pos = np.column_stack([g.x, g.y])
+    assert len(np.unique(pos, axis=0)) == m  # no duplicate node positions
+    if m >= 2:  # a triangulation (or chain) of distinct points is connected
+        from scipy.sparse import coo_matrix
+        from scipy.sparse.csgraph import connected_components
+
+        ncomp, _ = connected_components(coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(m, m)))
+        assert ncomp == 1
+    np.testing.assert_allclose(g.edge_length, np.hypot(*(pos[e[:, 0]] - pos[e[:, 1]]).T))

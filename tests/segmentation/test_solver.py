@@ -1,0 +1,99 @@
+"""End-to-end segmentation of synthetic normal flow (no simulator needed)."""
+
+import numpy as np
+import pytest
+
+from evseg.segmentation import SegmentationConfig, propagate_labels, segment_normal_flow
+from evseg.segmentation.motion_model import flow_field
+from evseg.segmentation.synthetic import synthetic_scene
+
+
+def majority(true_labels, found, k):
+    vals, counts = np.unique(found[true_labels == k], return_counts=True)
+    return vals[np.argmax(counts)], counts.max() / counts.sum()
+
+
+@pytest.mark.parametrize("seed", [0, 1, 3])
+def test_two_objects_are_found_with_their_models(seed):
+    s = synthetic_scene(n_flows=2500, n_objects=2, seed=seed)
+    r = segment_normal_flow(s.x, s.y, s.t, s.nx, s.ny, sensor_size=s.sensor_size)
+    truth = s.label[r.node_index]
+    assert r.n_objects == 2
+    labels_of = {}
+    for k in (0, 1, 2):
+        lab, share = majority(truth, r.node_labels, k)
+        # nodes near an object's boundary may take the neighbour's label: 95 % agreement
+        assert share > 0.95
+        labels_of[k] = lab
+    assert labels_of[0] == 0 and sorted([labels_of[1], labels_of[2]]) == [1, 2]
+    for k, lab in labels_of.items():
+        # Flow at the object's centre (the background's: sensor centre). A few boundary nodes
+        # of the neighbour bias the robust fit a little: 3 px/s is < 1 % of the speeds here.
+        cx, cy = (s.centers[k - 1] if k else np.array(s.sensor_size) / 2.0) - np.array(s.origin_px)
+        got = flow_field(r.models[lab : lab + 1], np.array([cx]), np.array([cy]))
+        want = flow_field(s.models[k : k + 1], np.array([cx]), np.array([cy]))
+        np.testing.assert_allclose(np.ravel(got), np.ravel(want), atol=3.0)
+    assert set(r.boxes) == {1, 2} and set(r.masks) == {1, 2}
+    for obj in (1, 2):
+        lab = labels_of[obj]
+        cx, cy = s.centers[obj - 1]
+        x0, y0, x1, y1 = r.boxes[lab]
+        assert x0 <= cx <= x1 and y0 <= cy <= y1
+        assert r.masks[lab][int(cy), int(cx)]
+        assert r.masks[lab].shape == (s.sensor_size[1], s.sensor_size[0])
+    for key in ("preprocessing", "initialization", "labeling_fitting"):
+        assert r.timings[key] >= 0
+
+
+def test_propagate_labels_nearest_node_and_distance_limit():
+    s = synthetic_scene(n_flows=1500, n_objects=1, seed=2)
+    r = segment_normal_flow(s.x, s.y, s.t, s.nx, s.ny, sensor_size=s.sensor_size)
+    lab = propagate_labels(r, r.node_x, r.node_y)
+    np.testing.assert_array_equal(lab, r.node_labels)
+    far = propagate_labels(r, np.array([-1000.0]), np.array([-1000.0]))
+    assert far.tolist() == [-1]
+    every = propagate_labels(r, s.x, s.y)
+    assert every.shape == s.x.shape
+
+
+def test_motion_prediction_supplies_candidates():
+    s = synthetic_scene(n_flows=2500, n_objects=2, seed=1)
+    cfg = SegmentationConfig()
+    first = segment_normal_flow(s.x, s.y, s.t, s.nx, s.ny, config=cfg, sensor_size=s.sensor_size)
+    second = segment_normal_flow(s.x, s.y, s.t + 10_000, s.nx, s.ny, config=cfg,
+                                 sensor_size=s.sensor_size, previous=first)
+    assert second.n_predicted >= 2  # background + at least one object
+    assert second.n_candidates <= second.n_predicted + cfg.n_sampled_with_prediction
+    assert second.n_objects == 2
+
+
+def test_outliers_do_not_create_objects():
+    s = synthetic_scene(n_flows=2500, n_objects=1, seed=4, outlier_fraction=0.3)
+    r = segment_normal_flow(s.x, s.y, s.t, s.nx, s.ny, sensor_size=s.sensor_size)
+    assert r.n_objects == 1
+    truth = s.label[r.node_index]
+    lab, share = majority(truth, r.node_labels, 1)
+    assert lab == 1 and share > 0.8
+
+
+@pytest.mark.parametrize("n", [0, 1, 2, 3])
+def test_tiny_and_degenerate_inputs(n):
+    x = np.arange(n, dtype=float) * 10
+    y = np.arange(n, dtype=float) * 10  # collinear
+    r = segment_normal_flow(x, y, np.arange(n), np.full(n, 30.0), np.zeros(n), sensor_size=(64, 48))
+    assert len(r.node_labels) == n
+    assert np.all(r.node_labels <= 0)
+    assert r.models.shape[1] == 4 and len(r.models) <= 1
+
+
+def test_inputs_not_modified_and_bad_shapes_rejected():
+    from evseg.errors import EventDataError
+
+    s = synthetic_scene(n_flows=800, n_objects=1, seed=5)
+    arrays = [s.x, s.y, s.t, s.nx, s.ny]
+    copies = [a.copy() for a in arrays]
+    segment_normal_flow(*arrays, sensor_size=s.sensor_size)
+    for a, b in zip(arrays, copies):
+        np.testing.assert_array_equal(a, b)
+    with pytest.raises(EventDataError, match="ny"):
+        segment_normal_flow(s.x, s.y, s.t, s.nx, s.ny[:-1])
