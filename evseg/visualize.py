@@ -129,11 +129,24 @@ def hstack_padded(images: list[np.ndarray], gap: int = 6) -> np.ndarray:
     return np.hstack(cols)
 
 
+def vstack_padded(images: list[np.ndarray], gap: int = 6) -> np.ndarray:
+    """Stack RGB images vertically, left-aligned, on white, ``gap`` px apart."""
+    w = max(i.shape[1] for i in images)
+    rows = []
+    for k, im in enumerate(images):
+        rows.append(np.hstack([im, np.full((im.shape[0], w - im.shape[1], 3), 255, np.uint8)]))
+        if k < len(images) - 1:
+            rows.append(np.full((gap, w, 3), 255, np.uint8))
+    return np.vstack(rows)
+
+
 def save_rgb(path: str | Path, img: np.ndarray) -> None:
     """Write an RGB uint8 image (PNG/JPEG by extension) atomically."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    ok, buf = cv2.imencode(path.suffix or ".png", np.ascontiguousarray(img[..., ::-1]))
+    suffix = path.suffix or ".png"
+    params = [cv2.IMWRITE_PNG_COMPRESSION, 9] if suffix.lower() == ".png" else []  # small files for docs
+    ok, buf = cv2.imencode(suffix, np.ascontiguousarray(img[..., ::-1]), params)
     if not ok:
         raise ValueError(f"cannot encode image as {path.suffix}")
     tmp = path.with_name(path.name + ".tmp")

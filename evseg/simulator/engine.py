@@ -18,11 +18,14 @@ from evseg.simulator.scene import SceneConfig
 
 def substep_count(scene: SceneInstance, cfg: SceneConfig, duration_us: int) -> int:
     """Number of rendering sub-steps so that no visible point moves more than ``max_step_px``
-    per step and no step is longer than ``max_step_us``."""
+    per step, no step is longer than ``max_step_us`` and a flicker period has 20 steps."""
     vmax = scene.max_speed_px_s(duration_us * 1e-6)
     by_speed = duration_us * 1e-6 * vmax / cfg.max_step_px
     by_time = duration_us / cfg.max_step_us
-    return max(1, int(np.ceil(max(by_speed, by_time))))
+    # Flicker changes every pixel's log intensity by up to ~amplitude per 1/(2 pi f): keep 20
+    # steps per period so the linear interpolation of the crossing times stays close.
+    by_flicker = duration_us * 1e-6 * scene.flicker_hz * 20 if scene.flicker_amplitude > 0 else 0.0
+    return max(1, int(np.ceil(max(by_speed, by_time, by_flicker))))
 
 
 def _smooth_log(frame: Frame, eps: float, sigma: float) -> tuple[np.ndarray, np.ndarray]:

@@ -15,14 +15,14 @@ which is what ground-truth labels and flow are read from.
 from __future__ import annotations
 
 import zlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
 
 from evseg.simulator.motion import AffineTrajectory, sample_trajectory
 from evseg.simulator.scene import SceneConfig
-from evseg.simulator.textures import make_texture, sample_texture_params, shape_alpha
+from evseg.simulator.textures import TextureParams, make_texture, sample_texture_params, shape_alpha
 
 MAX_TEXTURE_PX = 4096
 """Largest side of a background-role texture; beyond it the texture is mirrored (no seam)."""
@@ -138,6 +138,23 @@ def _background_role_layer(kind, tex_cfg, traj, width, height, duration_s, rng) 
     return Layer(kind, 0, tex, alpha, (float(origin[0]), float(origin[1])), traj, params.family)
 
 
+def _contrasting_mean(params: TextureParams, mean_range: tuple[float, float], bg_mean: float,
+                      min_log_contrast: float, rng: np.random.Generator) -> TextureParams:
+    """Redraw the texture's mean intensity until it differs from ``bg_mean`` by at least
+    ``min_log_contrast`` in log intensity (20 tries; else the farthest draw)."""
+    def dist(m: float) -> float:
+        return abs(np.log((m + 0.02) / (bg_mean + 0.02)))
+
+    best = params.mean
+    for _ in range(20):
+        if dist(best) >= min_log_contrast:
+            break
+        m = float(rng.uniform(*mean_range))
+        if dist(m) > dist(best):
+            best = m
+    return replace(params, mean=best)
+
+
 def sample_scene(cfg: SceneConfig, seed: int, duration_us: int) -> SceneInstance:
     """Draw a concrete scene from ``cfg`` (deterministic in ``seed`` and ``duration_us``)."""
     width, height = cfg.sensor.width, cfg.sensor.height
@@ -148,6 +165,7 @@ def sample_scene(cfg: SceneConfig, seed: int, duration_us: int) -> SceneInstance
     bg_traj = sample_trajectory(cfg.background.motion, rng, c0=centre)
     layers: list[Layer] = [_background_role_layer("background", cfg.background.texture, bg_traj, width, height, duration_s, rng)]
 
+    bg_mean = float(layers[0].texture.mean())
     objects: list[Layer] = []
     for j, ocfg in enumerate(cfg.objects):
         rng = child_rng(seed, f"objects/{j}")
@@ -159,7 +177,9 @@ def sample_scene(cfg: SceneConfig, seed: int, duration_us: int) -> SceneInstance
             aspect = float(r.uniform(*ocfg.aspect))
             alpha = shape_alpha(shape, long_px, aspect, r)
             h, w = alpha.shape
-            tex, _ = make_texture(h, w, sample_texture_params(ocfg.texture, r), r)
+            params = sample_texture_params(ocfg.texture, r)
+            params = _contrasting_mean(params, ocfg.texture.mean, bg_mean, ocfg.min_log_contrast, r)
+            tex, _ = make_texture(h, w, params, r)
             traj = sample_trajectory(ocfg.motion, r, theta0=float(r.uniform(0, 2 * np.pi)))
             m = (1.0 - ocfg.in_view) / 2.0
             point = (r.uniform(m, 1 - m) * (width - 1), r.uniform(m, 1 - m) * (height - 1))

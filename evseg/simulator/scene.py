@@ -154,6 +154,9 @@ class ObjectConfig:
         in_view: the object's centre passes through a uniform random point of the central
             ``in_view`` share of the frame (per axis) at a uniform random time of the
             recording, so objects may enter or leave the frame but are seen at some point.
+        min_log_contrast: the object's mean intensity differs from the background's mean by
+            at least this in log intensity (redrawn from ``texture.mean`` up to 20 times, then
+            the farthest draw is kept), so that its silhouette is seen by the camera.
     """
 
     count: tuple[int, int] = (1, 1)
@@ -163,6 +166,7 @@ class ObjectConfig:
     texture: TextureConfig = field(default_factory=TextureConfig)
     motion: MotionConfig = field(default_factory=MotionConfig)
     in_view: float = 0.7
+    min_log_contrast: float = 0.45
 
 
 @dataclass(frozen=True)
