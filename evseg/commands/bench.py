@@ -20,6 +20,7 @@ HELP = "time a pipeline stage (median over repeated runs) and write a markdown t
 
 # target -> "module:function"; each function returns a list of row dicts (same keys).
 TARGETS = {
+    "io": "evseg.io.bench:benchmark",
     "sim": "evseg.simulator.bench:benchmark",
     "flow": "evseg.veckm_flow.bench:benchmark",
     "seg": "evseg.segmentation.bench:benchmark",
