@@ -1,10 +1,11 @@
 """Outputs of a segmented window: object regions (node subsets), boxes, dense masks, and the
 propagation of node labels to any points (e.g. every event of the window).
 
-Object region: the nodes of an independently moving object (IMO) that belong to its main
-connected part in the Delaunay graph - connected components of the object's own edges, keeping
-every component with at least a quarter of the largest one's nodes. A few nodes wrongly given
-the object's label far away from it therefore do not blow up its box or hull.
+Objects and their regions: an independently moving object (IMO) is a connected part (in the
+Delaunay graph, over edges joining two nodes of the same label) of a moving label; sizeable
+parts of one label are separate objects sharing its model (:func:`split_objects`), small
+fragments stay with the label's largest part but outside its region, so a few nodes wrongly
+given the label far away do not blow up a box or hull.
 
 Box: inclusive pixel box (x0, y0, x1, y1) of the region's nodes, grown by ``grow_px`` (nodes
 lie on edges and texture, the silhouette reaches a little further) and clipped to the sensor.
@@ -20,26 +21,61 @@ from __future__ import annotations
 import numpy as np
 
 
-def object_regions(labels: np.ndarray, edges: np.ndarray, n_objects: int) -> dict[int, np.ndarray]:
-    """Node indices of each object's main connected part, {k: (n_k,) int64} for k = 1..K."""
+def split_objects(
+    labels: np.ndarray, edges: np.ndarray, models: np.ndarray, min_nodes: int
+) -> tuple[np.ndarray, np.ndarray, dict[int, np.ndarray]]:
+    """Make every sizeable connected part of a moving label its own object.
+
+    Two objects moving alike share one motion label; on the image they are separate connected
+    parts of it. Each part with at least ``min_nodes`` nodes (and at least a quarter of the
+    label's largest part) becomes an object with a copy of the label's model; smaller
+    fragments keep the label of the label's largest part and stay out of its region.
+
+    Args:
+        labels: (M,) 0 = background, 1..K objects, -1 unassigned. edges: (E, 2).
+        models: (K+1, 4). min_nodes: minimum size of a separate object.
+    Returns:
+        (labels, models, regions): new labels 1..K' by decreasing part size, (K'+1, 4) models,
+        and {k: node indices of object k's region}.
+    """
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
     labels = np.asarray(labels, dtype=np.int64)
     m = len(labels)
+    if len(models) <= 1 or m == 0:
+        return labels.copy(), np.asarray(models).reshape(-1, 4).copy(), {}
     same = labels[edges[:, 0]] == labels[edges[:, 1]] if len(edges) else np.zeros(0, dtype=bool)
     e = edges[same]
     adj = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(m, m))
     _, comp = connected_components(adj, directed=False)
-    regions = {}
-    for k in range(1, n_objects + 1):
+    parts = []  # (size, label, component id)
+    fragments = {}  # label -> (component ids that stay with its largest part)
+    for k in range(1, len(models)):  # loop over labels (a handful), arrays inside
         nodes = np.flatnonzero(labels == k)
         if len(nodes) == 0:
             continue
         ids, sizes = np.unique(comp[nodes], return_counts=True)
-        keep = ids[sizes >= 0.25 * sizes.max()]
-        regions[k] = nodes[np.isin(comp[nodes], keep)]
-    return regions
+        big = (sizes >= min_nodes) & (sizes >= 0.25 * sizes.max())
+        big[np.argmax(sizes)] = True
+        for c, n in zip(ids[big], sizes[big]):
+            parts.append((int(n), k, int(c)))
+        fragments[k] = (int(ids[np.argmax(sizes)]), ids[~big])
+    parts.sort(key=lambda p: (-p[0], p[1], p[2]))
+    new_labels = np.where(labels == 0, 0, -1)
+    new_models = [np.asarray(models[0])]
+    regions = {}
+    part_label = {}
+    for j, (_, k, c) in enumerate(parts, start=1):
+        nodes = np.flatnonzero((labels == k) & (comp == c))
+        new_labels[nodes] = j
+        new_models.append(np.asarray(models[k]))
+        regions[j] = nodes
+        part_label[(k, c)] = j
+    for k, (main, small) in fragments.items():
+        frag = (labels == k) & np.isin(comp, small)
+        new_labels[frag] = part_label[(k, main)]
+    return new_labels, np.array(new_models).reshape(-1, 4), regions
 
 
 def region_box(

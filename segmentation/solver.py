@@ -23,7 +23,9 @@ Order of the steps (our choice where the paper is silent):
    become -1 (unassigned). A cluster spread over more than ``max_object_extent`` of the sensor
    (box of its main connected part) is a background layer - e.g. a net in front of the scene,
    which the EED ground truth counts as background - and joins label 0 (the model of label 0
-   stays the largest cluster's).
+   stays the largest cluster's). Finally every sizeable connected part of an object label is an
+   object of its own (two objects moving alike share a model but are two objects;
+   :func:`.outputs.split_objects`), numbered by decreasing size.
 """
 
 from __future__ import annotations
@@ -40,7 +42,7 @@ from evseg.segmentation.expansion import alpha_expansion
 from evseg.segmentation.fitting import fit_lm
 from evseg.segmentation.initialization import fast_sampling, local_translations, motion_prediction
 from evseg.segmentation.motion_model import flow_field, model_change_px_s
-from evseg.segmentation.outputs import nearest_node_labels, object_regions, region_box, region_mask
+from evseg.segmentation.outputs import nearest_node_labels, region_box, region_mask, split_objects
 from evseg.segmentation.preprocessing import build_node_graph
 
 
@@ -259,9 +261,8 @@ def segment_normal_flow(
     timings["labeling_fitting"] = (time.perf_counter() - tic) * 1e3
 
     tic = time.perf_counter()
-    n_obj = max(len(models) - 1, 0)
-    regions = object_regions(labels, graph.edges, n_obj)
-    if sensor_size is not None and n_obj:
+    labels, models, regions = split_objects(labels, graph.edges, models, cfg.min_object_nodes)
+    if sensor_size is not None and len(regions):
         area = float(sensor_size[0] * sensor_size[1])
         layers = [k for k, nodes in regions.items()
                   if np.ptp(graph.x[nodes]) * np.ptp(graph.y[nodes]) > cfg.max_object_extent * area]
@@ -272,8 +273,7 @@ def segment_normal_flow(
             remap[layers] = 0
             labels = np.where(labels >= 0, remap[np.maximum(labels, 0)], -1)
             models = models[keep]
-            n_obj = len(models) - 1
-            regions = object_regions(labels, graph.edges, n_obj)
+            regions = {int(remap[k]): v for k, v in regions.items() if k not in layers}
     boxes, masks = {}, {}
     for k, nodes in regions.items():  # loop over objects (a handful), arrays inside
         # Motion compensation: move each node along its object's flow to the window's mid-time,
