@@ -67,6 +67,7 @@ def simulate(
     prev = render_frame(scene, 0.0, margin)
     prev_log, prev_smooth = _smooth_log(prev, eps, sigma)
     pixels = PixelArray(sensor, prev_log, child_rng(seed, "pixels"))
+    layer_labels = np.array([ly.label for ly in scene.layers], np.int16)
     chunks: list[tuple[np.ndarray, ...]] = []
     for i in range(1, n_steps + 1):
         t0, t1 = times_us[i - 1], times_us[i]
@@ -81,17 +82,18 @@ def simulate(
             flow = layer_flow(scene, layer, x, y, cr.t_us * 1e-6)
             grad = log_gradient_at(prev_smooth, x + margin, y + margin) + log_gradient_at(cur_smooth, x + margin, y + margin)
             nflow = project_on_gradient(flow, grad)
-            label = np.array([ly.label for ly in scene.layers], np.int16)[layer]
-            chunks.append((x, y, cr.t_us, cr.p, label, flow, nflow))
+            # Compact per-event storage (31 bytes) so long recordings fit in memory.
+            chunks.append((x.astype(np.uint16), y.astype(np.uint16), cr.t_us, cr.p, layer_labels[layer],
+                           flow.astype(np.float32), nflow.astype(np.float32)))
         prev, prev_log, prev_smooth = cur, cur_log, cur_smooth
         if progress is not None:
             progress(i, n_steps)
 
     noise = noise_events(sensor, duration_us, child_rng(seed, "noise"))
     nn = len(noise.pixel)
-    nan2 = np.full((nn, 2), np.nan)
-    chunks.append((noise.pixel % width, noise.pixel // width, noise.t_us, noise.p,
-                   np.full(nn, -1, np.int16), nan2, nan2))
+    nan2 = np.full((nn, 2), np.nan, np.float32)
+    chunks.append(((noise.pixel % width).astype(np.uint16), (noise.pixel // width).astype(np.uint16),
+                   noise.t_us, noise.p, np.full(nn, -1, np.int16), nan2, nan2))
 
     x, y, t, p, label, flow, nflow = (np.concatenate(c) for c in zip(*chunks))
     t_int = np.minimum(np.rint(t).astype(np.int64), duration_us - 1)
@@ -103,9 +105,9 @@ def simulate(
     events["p"] = p[order]
     return SimulatedRecording(
         stream=EventStream(events, (sensor.width, sensor.height)),
-        label=label[order].astype(np.int16),
-        flow=flow[order].astype(np.float32),
-        normal_flow=nflow[order].astype(np.float32),
+        label=label[order],
+        flow=flow[order],
+        normal_flow=nflow[order],
         object_ids=scene.object_ids,
         config=cfg,
         seed=int(seed),

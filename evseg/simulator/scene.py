@@ -122,6 +122,9 @@ class MotionConfig:
         wobble_hz: frequency of that variation in Hz.
         rotation_deg_s: magnitude of the mean rotation rate in deg/s (random sign).
         zoom_per_s: mean zoom rate d(log scale)/dt in 1/s (signed range; > 0 = approaching).
+            Zoom compounds: after T s the scale is about exp(zoom T), so a zooming scene
+            magnifies (blurs) or minifies (aliases) its texture in long recordings; keep
+            zooming recordings to a few seconds.
     """
 
     speed_px_s: Range = (0.0, 0.0)
