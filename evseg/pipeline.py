@@ -163,6 +163,7 @@ class MotionSegmentationPipeline:
         self.config = config if config.segmentation is not None else replace(config, segmentation=SegmentationConfig())
         self.sensor_size = (int(sensor_size[0]), int(sensor_size[1]))
         self.calibration = calibration
+        self._estimator = None
         self._flow_fn = flow_fn if flow_fn is not None else self._make_flow_fn()
         self.reset()
 
@@ -185,6 +186,7 @@ class MotionSegmentationPipeline:
             from evseg.veckm_flow import OnnxNormalFlow
 
             est = OnnxNormalFlow(model_path=cfg.model_path, threads=cfg.threads)
+        self._estimator = est
 
         def flow_fn(events: np.ndarray, sensor_size: tuple[int, int]):
             targets = select_targets(events, sensor_size, cell_px=cfg.target_cell_px)
@@ -205,6 +207,9 @@ class MotionSegmentationPipeline:
             if self._flow_fn is None:
                 raise EvsegError("pipeline.flow is 'precomputed' but no flow was given for this window")
             flow = self._flow_fn(ev, self.sensor_size)
+            split = getattr(self._estimator, "last_timing_s", None) or {}
+            for part, seconds in split.items():  # e.g. encode / network of the learned flow
+                timings[f"flow_{part}"] = seconds * 1e3
         timings["flow"] = (time.perf_counter() - t_start) * 1e3
 
         idx = np.asarray(flow.index, dtype=np.int64)

@@ -1,0 +1,118 @@
+"""Latency of the whole pipeline per stage, on simulated streams of set event rates and on
+the real recordings in ``../shared/data`` (when present).
+
+Simulated streams: the EVIMO-like scene at 346x260 with the contrast threshold scaled so that
+the stream has about 0.3, 1 and 3 M events/s (fewer events per edge crossing = higher rate,
+as a real sensor with a lower threshold). Each stream is written to an npz and read back
+through the readers, so 'read' is real I/O. Every stage figure is the median (and p90) over
+the windows of the stream, repeated ``repeats`` times over the same stream.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+STAGES = ["read", "flow_encode", "flow_network", "flow", "preprocessing", "initialization",
+          "labeling_fitting", "propagation", "total"]
+
+
+def simulated_stream(rate_ev_s: float, duration_us: int, seed: int = 1100):
+    """A simulated EVIMO-like recording whose event rate is close to ``rate_ev_s``."""
+    from evseg.simulator import load_scene_preset, simulate
+
+    cfg = load_scene_preset("evimo_like")
+    for _ in range(2):  # events scale roughly as 1 / threshold; two corrections get within ~10 %
+        probe = simulate(cfg, seed=seed, duration_us=min(duration_us, 50_000))
+        factor = probe.stream.rate_ev_s / rate_ev_s
+        sensor = replace(cfg.sensor, c_pos=cfg.sensor.c_pos * factor, c_neg=cfg.sensor.c_neg * factor)
+        cfg = replace(cfg, sensor=sensor)
+    return simulate(cfg, seed=seed, duration_us=duration_us)
+
+
+def time_pipeline(path: Path, repeats: int, flow: str = "learned", threads: int | None = None) -> dict:
+    """Per-stage median / p90 ms per window for one recording file."""
+    from evseg.io import open_recording
+    from evseg.pipeline import MotionSegmentationPipeline, PipelineConfig
+
+    per_stage: dict[str, list[float]] = {s: [] for s in STAGES}
+    n_events = n_windows = 0
+    for _ in range(repeats):
+        with open_recording(path) as rec:
+            t0 = time.perf_counter()
+            chunks = list(rec.chunks())
+            read_s = time.perf_counter() - t0
+            sensor = rec.sensor_size
+        pipe = MotionSegmentationPipeline(PipelineConfig(flow=flow, threads=threads), sensor_size=sensor)
+        results = []
+        it = pipe.run(chunks)
+        while True:
+            t0 = time.perf_counter()
+            res = next(it, None)
+            if res is None:
+                break
+            res.timings_ms["total"] = (time.perf_counter() - t0) * 1e3
+            results.append(res)
+        n_windows = len(results)
+        n_events = sum(len(c) for c in chunks)
+        for res in results:
+            tm = res.timings_ms
+            tm["read"] = read_s * 1e3 / max(n_windows, 1)
+            tm["total"] += tm["read"]
+            tm["flow_encode"] = tm.get("flow_encode", float("nan"))
+            tm["flow_network"] = tm.get("flow_network", float("nan"))
+            for s in STAGES:
+                per_stage[s].append(tm.get(s, 0.0))
+    window_ms = 10.0
+    out = {"events/window": n_events / max(n_windows, 1), "windows": n_windows}
+    for s in STAGES:
+        v = np.asarray(per_stage[s])
+        out[f"{s} ms"] = float(np.median(v)) if len(v) else float("nan")
+    tot = np.asarray(per_stage["total"])
+    out["total p90 ms"] = float(np.percentile(tot, 90)) if len(tot) else float("nan")
+    out["events/s processed"] = out["events/window"] / (out["total ms"] * 1e-3)
+    out["real-time factor"] = window_ms / out["total ms"]  # > 1: faster than the sensor
+    return out
+
+
+def benchmark(repeats: int = 3, quick: bool = False) -> list[dict]:
+    from evseg.io import write_npz
+
+    rows = []
+    duration_us = 100_000 if quick else 300_000
+    rates = [1e6] if quick else [3e5, 1e6, 3e6]
+    with tempfile.TemporaryDirectory() as tmp:
+        for rate in rates:
+            rec = simulated_stream(rate, duration_us)
+            path = Path(tmp) / f"sim_{int(rate)}.npz"
+            write_npz(rec.stream, path)
+            row = {"input": f"simulated 346x260, {rec.stream.rate_ev_s / 1e6:.2f} M ev/s"}
+            row.update(time_pipeline(path, repeats))
+            rows.append(row)
+    if not quick:
+        rows += _real_recordings(repeats)
+    return rows
+
+
+def _real_recordings(repeats: int) -> list[dict]:
+    shared = Path(os.environ.get("EVSEG_SHARED_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
+    files = [
+        "eed_what_is_background/events_t_us_x_y_on.npy",
+        "dvxplorer_person_aedat4/sample.aedat4",
+        "prophesee_evt_samples/evt3_sample.raw",
+        "prophesee_sparks/evt2.raw",
+    ]
+    rows = []
+    for name in files:
+        path = shared / name
+        if not path.is_file():
+            continue
+        row = {"input": name}
+        row.update(time_pipeline(path, repeats))
+        rows.append(row)
+    return rows
