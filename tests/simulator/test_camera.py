@@ -2,6 +2,8 @@
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from evseg.simulator.camera import PixelArray, noise_events
 from evseg.simulator.scene import SensorConfig
@@ -73,3 +75,31 @@ def test_noise_and_hot_pixel_rates():
     for h in hot:  # a hot pixel keeps one polarity (plus its ~2 background-activity events)
         assert abs(cr.p[cr.pixel == h].mean()) > 0.95
     assert np.all((cr.t_us >= 0) & (cr.t_us < 1_000_000))
+
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    levels=st.lists(st.floats(-3.0, 3.0, allow_nan=False), min_size=2, max_size=30),
+    c_pos=st.floats(0.05, 0.5),
+    c_neg=st.floats(0.05, 0.5),
+)
+def test_events_account_for_every_threshold_crossing(levels, c_pos, c_neg):
+    # Whatever the log-intensity path, the reference stays within (-C_neg, C_pos) of the signal,
+    # it moved by exactly (ON count) C_pos - (OFF count) C_neg, timestamps lie in their step and
+    # are ordered per pixel.
+    sensor = _sensor(width=1, c_pos=c_pos, c_neg=c_neg)
+    path = np.asarray(levels, np.float32)
+    px = PixelArray(sensor, path[:1].reshape(1, 1), np.random.default_rng(0))
+    n_on = n_off = 0
+    times = []
+    for i in range(1, len(path)):
+        cr = px.step(path[i - 1 : i].reshape(1, 1), path[i : i + 1].reshape(1, 1), 100.0 * (i - 1), 100.0 * i)
+        assert np.all((cr.t_us >= 100.0 * (i - 1)) & (cr.t_us <= 100.0 * i))
+        times.extend(np.sort(cr.t_us))
+        n_on += int((cr.p > 0).sum())
+        n_off += int((cr.p < 0).sum())
+        d = float(path[i] - px.ref[0])
+        assert -c_neg - 1e-5 < d < c_pos + 1e-5
+    np.testing.assert_allclose(px.ref[0] - path[0], n_on * np.float32(c_pos) - n_off * np.float32(c_neg), atol=1e-4)
+    assert np.all(np.diff(times) >= 0)

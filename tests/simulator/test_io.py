@@ -1,6 +1,5 @@
 """Saving and loading simulated recordings."""
 
-import zipfile
 
 import numpy as np
 import pytest
