@@ -141,3 +141,12 @@ def test_text_and_npz_round_trip_property(tmp_path_factory, stream):
     np.testing.assert_array_equal(back.events["t"], stream.events["t"] + stream.t_offset_us)
     for k in "xyp":
         np.testing.assert_array_equal(back.events[k], stream.events[k])
+
+
+def test_comment_and_blank_lines_inside_blocks(tmp_path):
+    p = _write(tmp_path, "c.txt", "64 48\n0.1 1 1 1\n\n# note\n0.2 2 2 0\n0.3 3 3 1\n")
+    chunks = list(open_recording(p, chunk_events=2).chunks())
+    assert [c["t"].tolist() for c in chunks] == [[100000, 200000], [300000]]  # chunks count events
+    q = _write(tmp_path, "d.txt", "64 48\n0.1 1 1 1\n\n0.2 2 2 0\n0.3 99 3 1\n")
+    with pytest.raises(EventDataError, match=r"field 'x' = 99 at event 2 \(line 5\)"):
+        read_events(q)
