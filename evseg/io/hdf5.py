@@ -22,7 +22,7 @@ from typing import Iterable, Iterator
 import numpy as np
 
 from evseg.errors import FormatError
-from evseg.events import EVENT_DTYPE, EventStream
+from evseg.events import EventStream
 from evseg.io._atomic import atomic_path
 from evseg.io.numpy_files import columns_to_events
 from evseg.io.recording import Chunk

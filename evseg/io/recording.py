@@ -241,28 +241,3 @@ def parse_sensor_size(text: str) -> tuple[int, int]:
     if len(parts) != 2 or not all(p.strip().isdigit() for p in parts):
         raise EventDataError(f"sensor size must look like WIDTHxHEIGHT (e.g. 346x260), got {text!r}")
     return _check_sensor_size((int(parts[0]), int(parts[1])))
-
-
-def events_from_columns(
-    x: np.ndarray, y: np.ndarray, t_us: np.ndarray, p: np.ndarray, where: str
-) -> np.ndarray:
-    """Build an :data:`EVENT_DTYPE` array from decoded columns, checking their range.
-
-    ``x``, ``y`` must be integers in ``[0, 65535]``; ``t_us`` is integer microseconds;
-    ``p`` any polarity encoding (bool, 0/1, -1/+1). ``where`` names the file and format for
-    the error message, which gives the index of the first bad value.
-    """
-    ev = np.empty(len(x), dtype=EVENT_DTYPE)
-    for name, col in (("x", x), ("y", y)):
-        col = np.asarray(col)
-        if col.dtype.kind in "iuf" and len(col):
-            bad = np.flatnonzero((col < 0) | (col > 65535))
-            if len(bad):
-                i = int(bad[0])
-                raise EventDataError(f"{where}: field '{name}' = {col[i]} at event {i} is not a pixel coordinate")
-        ev[name] = col
-    ev["t"] = t_us
-    from evseg.events import polarity_to_signed
-
-    ev["p"] = polarity_to_signed(p)
-    return ev
