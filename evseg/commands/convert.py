@@ -23,12 +23,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--format", choices=list(FORMATS), default=None,
                    help="read the input as this format instead of detecting it")
     p.add_argument("--to", choices=["npz", "h5"], default=None,
-                   help="output format (default: from the output's extension)")
+                   help="output format; None: from the output's extension")
     p.add_argument("--topic", default=None, help="ROS bag topic of the dvs_msgs/EventArray messages")
     p.add_argument("--sensor-size", default=None, metavar="WxH",
                    help="sensor size in px, e.g. 346x260 (overrides the input's)")
     p.add_argument("--time-unit", choices=["s", "us"], default=None,
-                   help="text/csv only: unit of the time column (default: s if it has a decimal point)")
+                   help="text/csv only: unit of the time column; None: s if the first time has a decimal point, else us")
     p.add_argument("--sort", action="store_true",
                    help="accept unsorted timestamps and sort them (loads the whole recording)")
 
