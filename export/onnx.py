@@ -9,6 +9,7 @@ the random matrix go into ``metadata_props`` (format in :mod:`evseg.veckm_flow.i
 from __future__ import annotations
 
 import json
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -55,11 +56,15 @@ def export_onnx(head, cfg: EncodingConfig, path: str | Path, opset: int = OPSET,
     head.eval()
     try:
         dummy = torch.zeros(2, cfg.n_features, dtype=torch.float32)
-        torch.onnx.export(
-            head, (dummy,), str(tmp), opset_version=int(opset), input_names=["features"],
-            output_names=["head_out"], dynamic_axes={"features": {0: "targets"}, "head_out": {0: "targets"}},
-            dynamo=False,  # the TorchScript exporter: no onnxscript dependency, stable output
-        )
+        with warnings.catch_warnings():
+            # The TorchScript exporter is chosen on purpose (no onnxscript dependency, a plain
+            # Gemm/Relu graph); silence its deprecation notice.
+            warnings.simplefilter("ignore", DeprecationWarning)
+            torch.onnx.export(
+                head, (dummy,), str(tmp), opset_version=int(opset), input_names=["features"],
+                output_names=["head_out"], dynamic_axes={"features": {0: "targets"}, "head_out": {0: "targets"}},
+                dynamo=False,
+            )
     finally:
         head.train(was_training)
     model = onnx.load(str(tmp))

@@ -1,0 +1,68 @@
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from evseg.cli import main
+from evseg.veckm_flow import OnnxNormalFlow, select_targets
+from evseg.veckm_flow.synthetic import translating_edges
+from evseg.windows import time_window_slices
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory):
+    """A 50 ms synthetic recording in the project's npz schema, first event at t = 5 ms."""
+    scene = translating_edges((80, 60), n_edges=6, duration_us=50_000, seed=9)
+    ev = scene.events.copy()
+    ev["t"] += 5_000
+    path = tmp_path_factory.mktemp("rec") / "rec.npz"
+    np.savez(path, events=ev, sensor_size=np.array([80, 60]))
+    return path, ev
+
+
+def test_flow_writes_documented_schema_with_recording_indices(recording, random_onnx, tmp_path, capsys):
+    path, ev = recording
+    model, _, cfg = random_onnx
+    out = tmp_path / "flow.npz"
+    assert main(["flow", str(path), "--out", str(out), "--model", str(model), "--window-ms", "20", "--no-progress"]) == 0
+    z = np.load(out)
+    assert {"index", "nx", "ny", "uncertainty", "sensor_size"} <= set(z.files)
+    assert z["index"].dtype == np.int64 and z["nx"].dtype == np.float32 and z["uncertainty"].dtype == np.float32
+    np.testing.assert_array_equal(z["sensor_size"], [80, 60])
+    assert json.loads(str(z["config"]))["encoding"] == cfg.to_dict()
+    # Recompute slice by slice with the API: same targets (as recording positions) and flows.
+    est = OnnxNormalFlow(model)
+    idx, nx = [], []
+    for sl in time_window_slices(ev["t"], 20_000):
+        w = ev[sl]
+        f = est(w, (80, 60), select_targets(w, (80, 60), cell_px=2))
+        idx.append(f.index + sl.start)
+        nx.append(f.nx)
+    np.testing.assert_array_equal(z["index"], np.concatenate(idx))
+    np.testing.assert_allclose(z["nx"], np.concatenate(nx), rtol=1e-6)
+    assert "normal flows" in capsys.readouterr().out
+
+
+def test_flow_baseline_all_targets_and_video(recording, tmp_path):
+    path, ev = recording
+    out, video = tmp_path / "b.npz", tmp_path / "b.mp4"
+    rc = main(["flow", str(path), "--out", str(out), "--baseline", "--targets", "all", "--video", str(video), "--no-progress"])
+    assert rc == 0
+    z = np.load(out)
+    np.testing.assert_array_equal(z["index"], np.arange(len(ev)))
+    assert str(z["method"]) == "planefit"
+    cap = cv2.VideoCapture(str(video))
+    n_frames = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+    ok, frame = cap.read()
+    cap.release()
+    assert ok and n_frames == 3  # 50 ms in 20 ms slices
+    assert frame.shape[0] >= 360  # small sensors are enlarged
+
+
+def test_flow_option_errors_are_user_errors(recording, tmp_path, capsys):
+    path, _ = recording
+    assert main(["flow", str(path), "--out", str(tmp_path / "x.npz"), "--baseline", "--model", "m.onnx"]) == 2
+    assert main(["flow", str(path), "--out", str(tmp_path / "x.npz"), "--model", str(tmp_path / "none.onnx")]) == 2
+    assert "none.onnx" in capsys.readouterr().err
+    assert not (tmp_path / "x.npz").exists()

@@ -1,0 +1,84 @@
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from evseg.calibration import Calibration
+from evseg.errors import ModelError
+from evseg.veckm_flow import OnnxNormalFlow, encode_targets, head_output_to_flow, select_targets
+from evseg.veckm_flow.synthetic import translating_edges
+
+
+def test_inference_module_does_not_import_torch():
+    code = (
+        "import sys, evseg.veckm_flow.inference, evseg.veckm_flow; "
+        "from evseg.veckm_flow import OnnxNormalFlow, PlaneFitNormalFlow, encode_targets; "
+        "print('torch' in sys.modules)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
+
+
+def test_onnx_estimator_matches_torch_head_in_px_s(random_onnx):
+    import torch
+
+    path, head, cfg = random_onnx
+    scene = translating_edges(n_edges=8, seed=2)
+    targets = select_targets(scene.events, scene.sensor_size, cell_px=3)
+    est = OnnxNormalFlow(path, threads=1)
+    flow = est(scene.events, scene.sensor_size, targets)
+    feats = encode_targets(scene.events, targets, scene.sensor_size, cfg)
+    with torch.no_grad():
+        nx, ny, u = head_output_to_flow(head(torch.from_numpy(feats)), cfg)
+    np.testing.assert_array_equal(flow.index, targets)
+    # float32 MLP in two runtimes: differences are a few ulps of outputs of size ~1 head unit
+    # (1 head unit = flow_unit_px_s px/s), so 1e-5 relative to the unit is generous.
+    tol = 1e-5 * cfg.flow_unit_px_s
+    np.testing.assert_allclose(flow.nx, nx, atol=tol)
+    np.testing.assert_allclose(flow.ny, ny, atol=tol)
+    np.testing.assert_allclose(flow.uncertainty, u, rtol=1e-4)
+    assert flow.nx.dtype == np.float32 and flow.index.dtype == np.int64
+    assert set(est.last_timing_s) == {"encode", "network"}
+
+
+def test_metadata_rebuilds_encoder(random_onnx):
+    path, _, cfg = random_onnx
+    est = OnnxNormalFlow(path)
+    assert est.cfg == cfg
+    assert json.loads(est.metadata["evseg.encoding"]) == cfg.to_dict()
+    assert est.matrix.shape == (3, cfg.d)
+
+
+def test_default_targets_are_all_events_and_deterministic(random_onnx, make_slice):
+    path, _, cfg = random_onnx
+    ev = make_slice(2000, (40, 30))
+    est = OnnxNormalFlow(path, threads=1)
+    a = est(ev, (40, 30))
+    b = est(ev, (40, 30))
+    np.testing.assert_array_equal(a.index, np.arange(2000))
+    np.testing.assert_array_equal(a.nx, b.nx)
+
+
+def test_calibration_changes_flow_only_through_distortion(random_onnx, make_slice):
+    path, _, _ = random_onnx
+    ev = make_slice(3000, (40, 30), seed=4)
+    est = OnnxNormalFlow(path, threads=1)
+    K = np.array([[40.0, 0, 20], [0, 40.0, 15], [0, 0, 1]])
+    plain = est(ev, (40, 30))
+    # A distortion-free calibration is the identity map: same flow up to float32 rounding of
+    # the undistortion map (positions ~1e-5 px -> phases ~1e-5 rad).
+    same = est(ev, (40, 30), calibration=Calibration(K, np.zeros(4), (40, 30)))
+    np.testing.assert_allclose(same.nx, plain.nx, rtol=1e-3, atol=1e-2)
+    dist = est(ev, (40, 30), calibration=Calibration(K, np.array([-0.3, 0.1, 0, 0]), (40, 30)))
+    assert not np.allclose(dist.nx, plain.nx, rtol=1e-2)
+
+
+def test_missing_or_foreign_model_raises(tmp_path):
+    with pytest.raises(ModelError, match="not found"):
+        OnnxNormalFlow(tmp_path / "nope.onnx")
+    bad = tmp_path / "bad.onnx"
+    bad.write_bytes(b"not an onnx file")
+    with pytest.raises(ModelError, match="cannot load"):
+        OnnxNormalFlow(bad)

@@ -1,0 +1,99 @@
+"""``evseg bench flow``: normal flows per second, the encoding/network split, and the scaling
+with the number of events per slice (time must grow linearly).
+
+Input: synthetic slices of translating edges (:mod:`evseg.veckm_flow.synthetic`) at 346x260,
+20 ms, subsampled to the asked number of events. The learned model is the shipped one when
+present, otherwise a randomly initialised head of the default size (same cost; the rows say so).
+"""
+
+from __future__ import annotations
+
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from evseg.veckm_flow.synthetic import translating_edges
+from evseg.veckm_flow.targets import select_targets
+
+SENSOR = (346, 260)
+SLICE_US = 20_000
+
+
+def synthetic_slice(n_events: int, seed: int = 0) -> np.ndarray:
+    """Exactly ``n_events`` events of a 20 ms slice at 346x260 (sorted), from translating edges."""
+    per_crossing = 2 if n_events <= 150_000 else 6
+    n_edges = max(10, int(n_events / (1300 * per_crossing)) + 10)
+    ev = translating_edges(SENSOR, n_edges=n_edges, duration_us=SLICE_US, events_per_crossing=per_crossing, seed=seed).events
+    if len(ev) < n_events:  # too few: add edges of another seed (rare)
+        extra = synthetic_slice(n_events - len(ev), seed + 1)
+        ev = np.sort(np.concatenate([ev, extra]), order="t", kind="stable")
+    rng = np.random.default_rng(seed)
+    keep = np.sort(rng.choice(len(ev), size=n_events, replace=False))
+    return ev[keep]
+
+
+def _estimator():
+    """(estimator, label): the shipped model, or a random-weights head of the default size."""
+    from evseg.veckm_flow.inference import DEFAULT_MODEL, OnnxNormalFlow
+
+    if DEFAULT_MODEL.is_file():
+        return OnnxNormalFlow(), "shipped model"
+    from evseg.export import export_onnx
+    from evseg.veckm_flow import EncodingConfig, build_head
+
+    cfg = EncodingConfig()
+    path = Path(tempfile.mkdtemp(prefix="evseg-bench-")) / "random_head.onnx"
+    head = build_head(cfg)
+    export_onnx(head, cfg, path)
+    return OnnxNormalFlow(path), f"random weights, hidden {head.hidden}x{head.layers} (no shipped model)"
+
+
+def _time_learned(est, ev, targets, repeats: int) -> tuple[float, float, float]:
+    est(ev, SENSOR, targets)  # warm-up: compiled kernels, onnxruntime arenas
+    enc, net, tot = [], [], []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        est(ev, SENSOR, targets)
+        tot.append(time.perf_counter() - t0)
+        enc.append(est.last_timing_s["encode"])
+        net.append(est.last_timing_s["network"])
+    return float(np.median(enc)), float(np.median(net)), float(np.median(tot))
+
+
+def benchmark(repeats: int, quick: bool) -> list[dict]:
+    import numba
+
+    from evseg.veckm_flow.baseline import PlaneFitNormalFlow
+
+    est, label = _estimator()
+    threads = f"numba {numba.get_num_threads()}, ort default"
+    rows = []
+    sizes = [10_000, 100_000] if quick else [10_000, 30_000, 100_000, 300_000, 1_000_000]
+    for n in sizes:
+        ev = synthetic_slice(n)
+        targets = select_targets(ev, SENSOR, cell_px=1, max_targets=10_000)
+        enc, net, tot = _time_learned(est, ev, targets, repeats)
+        rows.append({
+            "method": "learned (" + label + ")", "events": n, "targets": len(targets),
+            "encode_ms": enc * 1e3, "network_ms": net * 1e3, "total_ms": tot * 1e3,
+            "flows_per_s": len(targets) / tot, "ns_per_event": tot / n * 1e9, "threads": threads,
+        })
+    # The classical baseline on the headline input, for comparison.
+    ev = synthetic_slice(100_000)
+    targets = select_targets(ev, SENSOR, cell_px=1, max_targets=10_000)
+    base = PlaneFitNormalFlow()
+    base(ev, SENSOR, targets)
+    ts = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        base(ev, SENSOR, targets)
+        ts.append(time.perf_counter() - t0)
+    tot = float(np.median(ts))
+    rows.append({
+        "method": "plane-fit baseline", "events": 100_000, "targets": len(targets), "encode_ms": float("nan"),
+        "network_ms": float("nan"), "total_ms": tot * 1e3, "flows_per_s": len(targets) / tot,
+        "ns_per_event": tot / 100_000 * 1e9, "threads": "numpy",
+    })
+    return rows
