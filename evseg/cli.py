@@ -67,6 +67,11 @@ def main(argv: list[str] | None = None) -> int:
             traceback.print_exc()
         print(f"evseg {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # output piped into e.g. `head`, which closed early: not an error
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
     except KeyboardInterrupt:
         print(f"evseg {args.command}: interrupted", file=sys.stderr)
         return 130
