@@ -116,7 +116,7 @@ def _lines(h, w, p: TextureParams, rng) -> tuple[np.ndarray, np.ndarray]:
     img = np.full((h, w), 0.5, np.float32)
     mask = np.zeros((h, w), np.float32)
     length = 4 * p.scale_px
-    for _ in range(_count(h, w, 2.5 * p.scale_px, p.density)):
+    for _ in range(_count(h, w, 1.5 * p.scale_px, p.density)):
         a = np.deg2rad(p.angle_deg + 90 * int(rng.integers(2)) + rng.normal(0, 10))
         cx, cy = rng.uniform(0, w), rng.uniform(0, h)
         half = 0.5 * length * rng.uniform(0.5, 1.5)
