@@ -2,7 +2,8 @@
 
 The time surface of a slice holds the latest timestamp of each pixel. Around each target event
 a plane ``t = a dx + b dy + c`` is fitted by least squares to the surface pixels of the
-``(2r+1)^2`` window whose timestamps lie within ``max_dt_us`` of the target's time;
+``(2r+1)^2`` window whose timestamps lie within ``max_dt_us`` of the target's time, then refitted
+once without the pixels far off the first plane (as in Benosman et al.'s local plane fits);
 ``g = (a, b)`` (s/px) is the surface gradient and the normal flow is ``n = g / |g|^2`` (px/s).
 Rejected fits (too few pixels, residual too large, flat surface) get NaN flow and infinite
 uncertainty. The uncertainty of an accepted fit is the standard error of the gradient's
@@ -49,6 +50,9 @@ def plane_fit_normal_flow(
     max_dt_us: int | None = None,
     max_rms_us: float = 1000.0,
     min_grad_s_px: float = 1e-6,
+    refit_rounds: int = 1,
+    outlier_factor: float = 2.0,
+    min_outlier_us: float = 200.0,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Plane-fit normal flow of the targets of one slice.
 
@@ -62,6 +66,8 @@ def plane_fit_normal_flow(
             (None: all of the slice).
         max_rms_us: fits with a larger residual RMS (us) are rejected.
         min_grad_s_px: gradients below this (s/px, i.e. faster than 1e6 px/s) are rejected.
+        refit_rounds: times the plane is refitted after dropping pixels whose residual exceeds
+            ``max(outlier_factor * RMS, min_outlier_us)`` (robustness where edges cross).
 
     Returns:
         ``(nx, ny, uncertainty)`` float32 ``(T,)``: px/s, angular standard error (rad); NaN /
@@ -82,22 +88,17 @@ def plane_fit_normal_flow(
     valid = win >= 0
     if max_dt_us is not None:
         valid &= np.abs(win - tt[:, None]) <= max_dt_us
-    wv = valid.astype(np.float64)
     tau = np.where(valid, (win - tt[:, None]) * 1e-6, 0.0)  # s, relative to the target
-    n = wv.sum(1)
-    # Normal equations of [dx, dy, 1] (T, 3, 3) and right-hand side (T, 3).
     X = np.stack([np.broadcast_to(dx, win.shape), np.broadcast_to(dy, win.shape), np.ones(win.shape)], -1)
-    XtX = np.einsum("tk,tki,tkj->tij", wv, X, X)
-    Xty = np.einsum("tk,tki,tk->ti", wv, X, tau)
-    enough = n >= max(min_points, 4)
-    XtX[~enough] = np.eye(3)  # keep solve well-posed; those targets are rejected below
-    det = np.linalg.det(XtX)
-    ok = enough & (np.abs(det) > 1e-9)
-    XtX[~ok] = np.eye(3)
-    coef = np.linalg.solve(XtX, Xty[..., None])[..., 0]
-    resid = np.where(valid, tau - np.einsum("tki,ti->tk", X, coef), 0.0)
-    dof = np.maximum(n - 3, 1)
-    sigma2 = (resid**2).sum(1) / dof  # s^2
+    for round_ in range(refit_rounds + 1):
+        coef, XtX, n, ok = _weighted_plane(X, tau, valid, min_points)
+        resid = np.where(valid, tau - np.einsum("tki,ti->tk", X, coef), 0.0)
+        sigma2 = (resid**2).sum(1) / np.maximum(n - 3, 1)  # s^2
+        if round_ < refit_rounds:
+            # Drop pixels off the plane (another edge, a stale pixel) and fit again; the floor
+            # keeps timestamp jitter of a clean plane from being called an outlier.
+            thr = np.maximum(outlier_factor * np.sqrt(sigma2), min_outlier_us * 1e-6)
+            valid = valid & (np.abs(resid) <= thr[:, None])
     a, b = coef[:, 0], coef[:, 1]
     g2 = a * a + b * b
     ok &= np.sqrt(sigma2) * 1e6 <= max_rms_us
@@ -111,6 +112,22 @@ def plane_fit_normal_flow(
     return nx.astype(np.float32), ny.astype(np.float32), unc.astype(np.float32)
 
 
+def _weighted_plane(X: np.ndarray, tau: np.ndarray, valid: np.ndarray, min_points: int):
+    """Least-squares plane per target over its valid pixels: ``(coef (T, 3), XtX (T, 3, 3),
+    n (T,), ok (T,))``; targets with too few pixels or a singular system get ``ok = False``
+    (and an identity system so that the batch solve stays well-posed)."""
+    wv = valid.astype(np.float64)
+    n = wv.sum(1)
+    XtX = np.einsum("tk,tki,tkj->tij", wv, X, X)
+    Xty = np.einsum("tk,tki,tk->ti", wv, X, tau)
+    ok = n >= max(min_points, 4)
+    XtX[~ok] = np.eye(3)
+    ok &= np.abs(np.linalg.det(XtX)) > 1e-9
+    XtX[~ok] = np.eye(3)
+    coef = np.linalg.solve(XtX, Xty[..., None])[..., 0]
+    return coef, XtX, n, ok
+
+
 @dataclass(frozen=True)
 class PlaneFitNormalFlow:
     """Plane-fit normal flow estimator with the interface of ``OnnxNormalFlow``.
@@ -122,6 +139,7 @@ class PlaneFitNormalFlow:
     min_points: int = 8
     max_dt_us: int | None = None
     max_rms_us: float = 1000.0
+    refit_rounds: int = 1
 
     def __call__(
         self,
@@ -138,6 +156,7 @@ class PlaneFitNormalFlow:
 
         targets = _validate_targets(targets, len(events))
         nx, ny, unc = plane_fit_normal_flow(
-            events, targets, sensor_size, self.radius_px, self.min_points, self.max_dt_us, self.max_rms_us
+            events, targets, sensor_size, self.radius_px, self.min_points, self.max_dt_us, self.max_rms_us,
+            refit_rounds=self.refit_rounds,
         )
         return NormalFlow(targets, nx, ny, unc)
