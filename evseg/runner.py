@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from evseg.errors import ConfigError, FormatError
+from evseg.errors import CalibrationError, ConfigError, FormatError
 
 
 @dataclass(frozen=True)
@@ -81,6 +81,13 @@ def run_segment_job(job: SegmentJob) -> str:
             raise ConfigError(f"{job.recording}: the file does not give the sensor size; pass --sensor-size WxH")
         if calibration is None:
             calibration = rec.calibration
+        elif tuple(calibration.sensor_size) != tuple(rec.sensor_size):
+            # K of another camera or resolution would undistort every event wrongly, silently.
+            raise CalibrationError(
+                f"{job.calib}: fields 'image_width', 'image_height' = "
+                f"{calibration.sensor_size[0]}x{calibration.sensor_size[1]} do not match the sensor "
+                f"{rec.sensor_size[0]}x{rec.sensor_size[1]} of {job.recording}"
+            )
         flow = load_flow_file(job.flow_file) if job.flow_file is not None else None
         pipe = MotionSegmentationPipeline(cfg, sensor_size=rec.sensor_size, calibration=calibration)
         stride_us = cfg.stride_us or cfg.window_us
