@@ -77,7 +77,7 @@ class SegmentationConfig:
     long edges across empty space (between separate objects) are cheap to cut."""
     edge_scale_px: float = 12.0
     """Length (px) up to which a Delaunay edge has full Potts weight ('distance' weighting)."""
-    lambda_m: float = 20.0
+    lambda_m: float = 80.0
     """Label cost (Delong et al. 2012) paid once per motion model in use (sigma^2 units)."""
 
     # --- optimisation ------------------------------------------------------------------
@@ -123,9 +123,9 @@ class SegmentationConfig:
 
     # --- outputs -----------------------------------------------------------------------
     max_object_extent: float = 0.5
-    """A cluster whose main connected part has a box covering more than this share of the
-    sensor is a background layer (a net or fence in front of the scene, with its own
-    parallax), not an object: its nodes join the background (needs the sensor size)."""
+    """A label holding >= 2 nodes in more than this share of the occupied cells of an 8x8
+    grid over the image is a background layer (a net or fence in front of the scene, with its
+    own parallax), not an object: its nodes join the background (needs the sensor size)."""
     min_object_nodes: int = 6
     """Objects (IMOs) with fewer nodes are set to -1 (unassigned) in the result."""
     mask_method: str = "hull"

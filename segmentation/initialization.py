@@ -1,17 +1,18 @@
 """Initialization (paper Sec. III-D): fast sampling and motion prediction of candidate models.
 
 * Fast sampling: n normal flows with clearly different translation vectors each give a
-  candidate (rho = 1, theta = 0, t = that flow's translation vector). "Clearly different" and
-  "typical" are made deterministic by counting the vectors in bins of a few residual scales
-  (sigma) and taking bin means from the most populated bin down, skipping any closer than the
-  minimum separation to one already taken.
+  candidate (rho = 1, theta = 0, t = that flow's translation vector). "Clearly different" is made
+  deterministic by counting the vectors in bins of a few residual scales (sigma): half the
+  candidates are the most populated bins, the other half the bins farthest from every
+  candidate so far (see :func:`fast_sampling`).
 
   The translation vector of a node (``sampling_flow = 'local'``, default) is the translation
   that best explains the normal flows of the node and its Delaunay neighbours (least squares
   of n_hat . t = |n| over the 1-ring, a 2x2 system per node accumulated with bincount). A
   single normal flow is only the component of the motion along its gradient, typically
   |u| sin(angle) away from the motion itself; its 1-ring sees several gradient directions and
-  resolves the aperture problem, so an object's nodes vote for (nearly) one vector. Nodes
+  resolves the aperture problem, so an object's nodes vote for (nearly) one vector. A few
+  Cauchy-reweighted iterations keep outlier flows in a ring from dragging the vote. Nodes
   whose ring is ill-conditioned (all gradients parallel) do not vote.
   ``sampling_flow = 'normal'`` uses the normal flow itself, as the paper's text reads. Populated bins first means random outlier flows, which
   scatter over many sparse bins, rarely become candidates.
@@ -31,14 +32,24 @@ from evseg.segmentation.motion_model import flow_field
 
 
 def local_translations(
-    nx: np.ndarray, ny: np.ndarray, edges: np.ndarray, min_conditioning: float = 0.1
+    nx: np.ndarray,
+    ny: np.ndarray,
+    edges: np.ndarray,
+    scale_px_s: float | None = None,
+    irls_iterations: int = 3,
+    min_conditioning: float = 0.1,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Least-squares translation of every node's 1-ring (the node and its graph neighbours).
+    """Robust least-squares translation of every node's 1-ring (the node and its neighbours).
 
-    Solves sum_j n_hat_j n_hat_j^T t = sum_j |n_j| n_hat_j per node (2x2, closed form).
+    Solves sum_j w_j n_hat_j n_hat_j^T t = sum_j w_j |n_j| n_hat_j per node (2x2, closed form),
+    first with w = 1, then ``irls_iterations`` times with Cauchy weights
+    w_j = 1 / (1 + (r_j / scale)^2) of the ring's residuals r_j = n_hat_j . t - |n_j|, so a
+    few wrong flows in a ring (outliers, the other side of an object boundary) do not drag
+    the node's vote. All nodes at once with bincount over the (directed) edges.
 
     Args:
         nx, ny: (M,) normal flow px/s (|n| > 0). edges: (E, 2) graph edges.
+        scale_px_s: Cauchy scale (px/s); None = no reweighting.
         min_conditioning: nodes whose system has eigenvalue ratio below this do not vote.
     Returns:
         (tx, ty, ok): (M,) translations px/s and the (M,) mask of well-conditioned nodes.
@@ -48,23 +59,26 @@ def local_translations(
     m = len(nx)
     norm = np.hypot(nx, ny)
     hx, hy = nx / norm, ny / norm
-    terms = np.stack([hx * hx, hx * hy, hy * hy, nx, ny])  # n_hat |n| = n
-    acc = terms.copy()
-    if len(edges):
-        i, j = edges[:, 0], edges[:, 1]
-        for r in range(5):
-            acc[r] += np.bincount(i, weights=terms[r][j], minlength=m)
-            acc[r] += np.bincount(j, weights=terms[r][i], minlength=m)
-    a, b, c, bx, by = acc
-    det = a * c - b * b
-    tr = a + c
-    # eigenvalue ratio lmin/lmax of [[a, b], [b, c]] from det and trace
-    disc = np.sqrt(np.maximum(tr * tr / 4.0 - det, 0.0))
-    lmax, lmin = tr / 2.0 + disc, tr / 2.0 - disc
-    ok = lmin >= min_conditioning * np.maximum(lmax, 1e-300)
-    safe = np.where(ok, det, 1.0)
-    tx = np.where(ok, (c * bx - b * by) / safe, nx)
-    ty = np.where(ok, (a * by - b * bx) / safe, ny)
+    # ring pairs (centre, member): each node with itself and both directions of every edge
+    centre = np.concatenate([np.arange(m), edges[:, 0], edges[:, 1]])
+    member = np.concatenate([np.arange(m), edges[:, 1], edges[:, 0]])
+    px, py, pn = hx[member], hy[member], norm[member]
+    terms = (px * px, px * py, py * py, pn * px, pn * py)
+
+    def solve(w):
+        a, b, c, bx, by = (np.bincount(centre, weights=w * v, minlength=m) for v in terms)
+        det = a * c - b * b
+        disc = np.sqrt(np.maximum((a + c) ** 2 / 4.0 - det, 0.0))
+        lmax, lmin = (a + c) / 2.0 + disc, (a + c) / 2.0 - disc
+        ok = lmin >= min_conditioning * np.maximum(lmax, 1e-300)
+        safe = np.where(ok, det, 1.0)
+        return np.where(ok, (c * bx - b * by) / safe, nx), np.where(ok, (a * by - b * bx) / safe, ny), ok
+
+    tx, ty, ok = solve(np.ones(len(centre)))
+    if scale_px_s is not None:
+        for _ in range(irls_iterations):
+            r = (px * tx[centre] + py * ty[centre] - pn) / scale_px_s
+            tx, ty, ok = solve(1.0 / (1.0 + r * r))
     return tx, ty, ok
 
 
@@ -74,19 +88,23 @@ def fast_sampling(
     n: int,
     bin_px_s: float,
     min_separation_px_s: float,
+    min_votes: int = 3,
 ) -> np.ndarray:
-    """Up to ``n`` translation candidates from distinct, frequent flow vectors.
+    """Up to ``n`` translation candidates from distinct flow vectors: frequent ones and far ones.
 
     The flow vectors are counted in square bins of ``bin_px_s`` over the whole flow plane (no
-    range clipping, so a small fast object keeps its own bin); bins are visited from the most
-    to the least populated and a bin's mean vector is taken when it lies at least
-    ``min_separation_px_s`` from every vector taken so far.
+    range clipping). The first ceil(n/2) candidates are the means of the most populated bins
+    (the background and large objects), skipping bins closer than ``min_separation_px_s`` to a
+    candidate already taken; the rest are chosen by farthest-point sampling among bins with at
+    least ``min_votes`` vectors: the bin farthest from every candidate so far, so a small object
+    moving unlike anything else (a ball: 1 % of the nodes) is never crowded out by variations of
+    the background. Bins with fewer votes (lone outliers) are never farthest-point candidates.
 
     Args:
         nx, ny: (M,) flow vectors (normal flows or 1-ring translations), px/s.
         n: number of candidates wanted; fewer come back when the flows are not that varied.
     Returns:
-        (n', 4) models (1, 0, t_x, t_y), n' <= n, most frequent first.
+        (n', 4) models (1, 0, t_x, t_y), n' <= n.
     """
     nx = np.asarray(nx, dtype=np.float64)
     ny = np.asarray(ny, dtype=np.float64)
@@ -98,18 +116,29 @@ def fast_sampling(
     iy -= iy.min()
     _, key, count = np.unique(ix * (int(iy.max()) + 1) + iy, return_inverse=True, return_counts=True)
     key = key.ravel()
-    mean_x = np.bincount(key, weights=nx) / count
-    mean_y = np.bincount(key, weights=ny) / count
+    means = np.column_stack([np.bincount(key, weights=nx), np.bincount(key, weights=ny)]) / count[:, None]
     order = np.argsort(-count, kind="stable")
-    taken = np.empty((0, 2))
     d2 = min_separation_px_s ** 2
-    for o in order:  # loop over occupied bins until n candidates: bounded by n * (bins skipped)
-        c = np.array([mean_x[o], mean_y[o]])
-        if len(taken) == 0 or np.min(((taken - c) ** 2).sum(axis=1)) >= d2:
-            taken = np.vstack([taken, c])
-            if len(taken) == n:
-                break
-    return np.column_stack([np.ones(len(taken)), np.zeros(len(taken)), taken])
+    n_frequent = (n + 1) // 2
+    taken = [means[order[0]]]
+    # dist2[b] = squared distance of bin b to the nearest candidate taken so far
+    dist2 = ((means - taken[0]) ** 2).sum(axis=1)
+    for o in order[1:]:  # most populated first; stops after n_frequent (bins skipped: cheap)
+        if len(taken) >= n_frequent or count[o] < 2:
+            break
+        if dist2[o] >= d2:
+            taken.append(means[o])
+            dist2 = np.minimum(dist2, ((means - means[o]) ** 2).sum(axis=1))
+    eligible = count >= min_votes
+    while len(taken) < n:  # farthest-point sampling, at most n - n_frequent rounds
+        score = np.where(eligible, dist2, -1.0)
+        o = int(np.argmax(score))
+        if score[o] < d2:
+            break
+        taken.append(means[o])
+        dist2 = np.minimum(dist2, ((means - means[o]) ** 2).sum(axis=1))
+    t = np.array(taken).reshape(-1, 2)
+    return np.column_stack([np.ones(len(t)), np.zeros(len(t)), t])
 
 
 def predict_boxes(

@@ -21,6 +21,41 @@ from __future__ import annotations
 import numpy as np
 
 
+def background_layers(
+    labels: np.ndarray,
+    x: np.ndarray,
+    y: np.ndarray,
+    sensor_size: tuple[int, int],
+    max_extent: float,
+    grid: int = 8,
+) -> np.ndarray:
+    """Object labels (>= 1) spread over the image like a background layer.
+
+    The image is cut into ``grid`` x ``grid`` cells; a label's coverage is the share of the
+    cells holding any node that hold at least 2 nodes of the label (2, so a few stray nodes
+    do not count). A net or fence in front of the scene, or a model that only collected
+    scattered outliers, covers most of the image; an object covers its own patch.
+
+    Returns:
+        int64 array of the labels whose coverage exceeds ``max_extent``.
+    """
+    labels = np.asarray(labels, dtype=np.int64)
+    w, h = sensor_size
+    cx = np.clip((np.asarray(x) * grid / w).astype(np.int64), 0, grid - 1)
+    cy = np.clip((np.asarray(y) * grid / h).astype(np.int64), 0, grid - 1)
+    cell = cx * grid + cy
+    n_labels = int(labels.max()) + 1 if len(labels) else 0
+    if n_labels <= 1:
+        return np.empty(0, dtype=np.int64)
+    valid = labels >= 0
+    counts = np.bincount(labels[valid] * grid * grid + cell[valid],
+                         minlength=n_labels * grid * grid).reshape(n_labels, grid * grid)
+    occupied = max(int(np.count_nonzero(np.bincount(cell, minlength=grid * grid))), 1)
+    coverage = (counts >= 2).sum(axis=1) / occupied
+    layers = np.flatnonzero(coverage > max_extent)
+    return layers[layers >= 1]
+
+
 def split_objects(
     labels: np.ndarray, edges: np.ndarray, models: np.ndarray, min_nodes: int
 ) -> tuple[np.ndarray, np.ndarray, dict[int, np.ndarray]]:

@@ -20,8 +20,8 @@ Order of the steps (our choice where the paper is silent):
    than ``model_tol_px_s``.
 5. The label with the most nodes is the background (label 0); the others are independently
    moving objects 1..K by decreasing node count; objects under ``min_object_nodes`` nodes
-   become -1 (unassigned). A cluster spread over more than ``max_object_extent`` of the sensor
-   (box of its main connected part) is a background layer - e.g. a net in front of the scene,
+   become -1 (unassigned). A label spread over more than ``max_object_extent`` of the image
+   (:func:`.outputs.background_layers`) is a background layer - e.g. a net in front of the scene,
    which the EED ground truth counts as background - and joins label 0 (the model of label 0
    stays the largest cluster's). Finally every sizeable connected part of an object label is an
    object of its own (two objects moving alike share a model but are two objects;
@@ -42,7 +42,9 @@ from evseg.segmentation.expansion import alpha_expansion
 from evseg.segmentation.fitting import fit_lm
 from evseg.segmentation.initialization import fast_sampling, local_translations, motion_prediction
 from evseg.segmentation.motion_model import flow_field, model_change_px_s
-from evseg.segmentation.outputs import nearest_node_labels, region_box, region_mask, split_objects
+from evseg.segmentation.outputs import (
+    background_layers, nearest_node_labels, region_box, region_mask, split_objects,
+)
 from evseg.segmentation.preprocessing import build_node_graph
 
 
@@ -201,7 +203,7 @@ def segment_normal_flow(
     n_sample = cfg.n_sampled_with_prediction if n_object_candidates else cfg.n_sampled
     vx, vy = graph.nx, graph.ny
     if cfg.sampling_flow == "local" and m:
-        tx, ty, ok = local_translations(graph.nx, graph.ny, graph.edges)
+        tx, ty, ok = local_translations(graph.nx, graph.ny, graph.edges, sigma)
         # Every node votes when no 1-ring is well conditioned (e.g. one straight edge).
         vx, vy = (tx[ok], ty[ok]) if ok.any() else (tx, ty)
     sampled = fast_sampling(vx, vy, n_sample, cfg.sampling_bin * sigma, cfg.min_candidate_separation * sigma)
@@ -261,19 +263,16 @@ def segment_normal_flow(
     timings["labeling_fitting"] = (time.perf_counter() - tic) * 1e3
 
     tic = time.perf_counter()
-    labels, models, regions = split_objects(labels, graph.edges, models, cfg.min_object_nodes)
-    if sensor_size is not None and len(regions):
-        area = float(sensor_size[0] * sensor_size[1])
-        layers = [k for k, nodes in regions.items()
-                  if np.ptp(graph.x[nodes]) * np.ptp(graph.y[nodes]) > cfg.max_object_extent * area]
-        if layers:
+    if sensor_size is not None and len(models) > 1:
+        layers = background_layers(labels, graph.x, graph.y, sensor_size, cfg.max_object_extent)
+        if len(layers):
             keep = np.setdiff1d(np.arange(len(models)), layers)
             remap = np.full(len(models), -1, dtype=np.int64)
             remap[keep] = np.arange(len(keep))
             remap[layers] = 0
             labels = np.where(labels >= 0, remap[np.maximum(labels, 0)], -1)
             models = models[keep]
-            regions = {int(remap[k]): v for k, v in regions.items() if k not in layers}
+    labels, models, regions = split_objects(labels, graph.edges, models, cfg.min_object_nodes)
     boxes, masks = {}, {}
     for k, nodes in regions.items():  # loop over objects (a handful), arrays inside
         # Motion compensation: move each node along its object's flow to the window's mid-time,
