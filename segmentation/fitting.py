@@ -148,8 +148,8 @@ def fit_lm(
     JJ = (Jq[:, :, None] * Jq[:, None, :]).reshape(-1, 16)
     N, W0 = _t(norm), _t(w0)
     inv_scale = 1.0 / float(loss_scale_px_s)
-    zeros4 = torch.zeros(n_labels, 4, dtype=torch.float64)
-    eye = torch.eye(4, dtype=torch.float64)
+    zero = torch.zeros(n_labels, dtype=torch.float64)
+    one = torch.ones(n_labels, dtype=torch.float64)
 
     def q_of(pp: torch.Tensor) -> torch.Tensor:
         c, s = torch.cos(pp[:, 1]), torch.sin(pp[:, 1])
@@ -164,15 +164,16 @@ def fit_lm(
     mu = torch.full((n_labels,), float(damping), dtype=torch.float64)
     for _ in range(iterations):
         w = W0 * wr
-        Hq = torch.zeros(n_labels, 16, dtype=torch.float64).index_add_(0, lab, JJ * w[:, None]).reshape(-1, 4, 4)
-        gq = zeros4.index_add(0, lab, Jq * (w * r)[:, None])
+        # One accumulation for H_q (16 entries) and g_q (4) of every label.
+        acc20 = torch.zeros(n_labels, 20, dtype=torch.float64).index_add_(
+            0, lab, torch.cat([JJ * w[:, None], Jq * (w * r)[:, None]], dim=1))
+        Hq, gq = acc20[:, :16].reshape(-1, 4, 4), acc20[:, 16:, None]
         c, s = torch.cos(p[:, 1]), torch.sin(p[:, 1])
-        T = torch.zeros(n_labels, 4, 4, dtype=torch.float64)
-        T[:, 0, 0], T[:, 0, 1], T[:, 1, 0], T[:, 1, 1] = c, -p[:, 0] * s, s, p[:, 0] * c
-        T[:, 2, 2] = T[:, 3, 3] = 1.0
+        T = torch.stack([c, -p[:, 0] * s, zero, zero, s, p[:, 0] * c, zero, zero,
+                         zero, zero, one, zero, zero, zero, zero, one], dim=1).reshape(-1, 4, 4)
         Tt = T.transpose(1, 2)
         H = Tt @ Hq @ T
-        g = (Tt @ gq[:, :, None])[:, :, 0]
+        g = (Tt @ gq)[:, :, 0]
         d = torch.diagonal(H, dim1=1, dim2=2)
         damp = mu[:, None] * d + 1e-12 * (d.mean(dim=1, keepdim=True) + 1.0)
         step = -torch.linalg.solve(H + torch.diag_embed(damp), g)
