@@ -48,7 +48,7 @@ def plane_fit_normal_flow(
     radius_px: int = 3,
     min_points: int = 8,
     max_dt_us: int | None = None,
-    max_rms_us: float = 1000.0,
+    max_rms_px: float = 2.0,
     min_grad_s_px: float = 1e-6,
     refit_rounds: int = 1,
     outlier_factor: float = 2.0,
@@ -64,7 +64,9 @@ def plane_fit_normal_flow(
         min_points: fewer valid surface pixels -> rejected.
         max_dt_us: surface pixels further than this from the target's time are ignored
             (None: all of the slice).
-        max_rms_us: fits with a larger residual RMS (us) are rejected.
+        max_rms_px: fits whose residual RMS, converted to an edge position error
+            (``rms_s * |n|``, px), exceeds this are rejected: a scale-free rule, since slow
+            edges have large time residuals for the same geometric misfit.
         min_grad_s_px: gradients below this (s/px, i.e. faster than 1e6 px/s) are rejected.
         refit_rounds: times the plane is refitted after dropping pixels whose residual exceeds
             ``max(outlier_factor * RMS, min_outlier_us)`` (robustness where edges cross).
@@ -101,7 +103,8 @@ def plane_fit_normal_flow(
             valid = valid & (np.abs(resid) <= thr[:, None])
     a, b = coef[:, 0], coef[:, 1]
     g2 = a * a + b * b
-    ok &= np.sqrt(sigma2) * 1e6 <= max_rms_us
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ok &= np.sqrt(sigma2) / np.sqrt(g2) <= max_rms_px  # rms (s) * |n| (px/s)
     ok &= np.sqrt(g2) >= min_grad_s_px
     cov = np.linalg.inv(XtX) * sigma2[:, None, None]
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -138,7 +141,7 @@ class PlaneFitNormalFlow:
     radius_px: int = 3
     min_points: int = 8
     max_dt_us: int | None = None
-    max_rms_us: float = 1000.0
+    max_rms_px: float = 2.0
     refit_rounds: int = 1
 
     def __call__(
@@ -156,7 +159,7 @@ class PlaneFitNormalFlow:
 
         targets = _validate_targets(targets, len(events))
         nx, ny, unc = plane_fit_normal_flow(
-            events, targets, sensor_size, self.radius_px, self.min_points, self.max_dt_us, self.max_rms_us,
+            events, targets, sensor_size, self.radius_px, self.min_points, self.max_dt_us, self.max_rms_px,
             refit_rounds=self.refit_rounds,
         )
         return NormalFlow(targets, nx, ny, unc)

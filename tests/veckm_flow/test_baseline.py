@@ -72,3 +72,11 @@ def test_plane_fit_function_does_not_mutate_input():
     before = scene.events.copy()
     plane_fit_normal_flow(scene.events, np.arange(0, len(scene.events), 5), scene.sensor_size)
     np.testing.assert_array_equal(scene.events, before)
+
+
+def test_random_timestamps_are_rejected_by_the_scale_free_residual_rule(make_slice):
+    # Uniformly random times on a dense 40x30 patch: no plane explains them. The residual as an
+    # edge position error is many px, so (almost) all fits are rejected; without the rule none is.
+    ev = make_slice(3000, (40, 30))
+    assert PlaneFitNormalFlow()(ev, (40, 30)).valid.mean() < 0.02
+    assert PlaneFitNormalFlow(max_rms_px=1e9)(ev, (40, 30)).valid.mean() == 1.0
