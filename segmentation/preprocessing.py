@@ -120,9 +120,17 @@ def delaunay_edges(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     if n < 2:
         return np.empty((0, 2), dtype=np.int64)
     pts = np.column_stack([np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)])
-    if n >= 3:
+    d = pts - pts.mean(axis=0)
+    sv = np.linalg.svd(d, compute_uv=False)
+    collinear = sv[-1] <= 1e-9 * max(sv[0], 1e-300)
+    if n >= 3 and not collinear:
+        # Pixel-lattice nodes are full of co-circular quadruples, Qhull's slow case; a fixed
+        # sub-pixel offset (1e-3 px, golden-ratio sequence: deterministic) breaks those ties and
+        # the result is a Delaunay triangulation of the original points with ties resolved.
+        h = (np.arange(n) * 0.6180339887498949) % 1.0
+        jitter = np.column_stack([h - 0.5, (h * 7.3) % 1.0 - 0.5]) * 1e-3
         try:
-            simplices = Delaunay(pts).simplices
+            simplices = Delaunay(pts + jitter).simplices
         except QhullError:
             simplices = None
         if simplices is not None:
@@ -130,7 +138,6 @@ def delaunay_edges(x: np.ndarray, y: np.ndarray) -> np.ndarray:
             e = np.sort(e, axis=1).astype(np.int64)
             return _unique_pairs(e, n)
     # Collinear (or 2 points): chain along the principal direction.
-    d = pts - pts.mean(axis=0)
     direction = np.linalg.svd(d, full_matrices=False)[2][0]
     order = np.argsort(d @ direction, kind="stable")
     e = np.sort(np.column_stack([order[:-1], order[1:]]), axis=1).astype(np.int64)
