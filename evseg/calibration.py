@@ -105,6 +105,13 @@ def _matrix_data(doc: dict, key: str, path: str) -> np.ndarray:
     return arr
 
 
+def _positive_int(doc: dict, key: str, path: str) -> int:
+    val = _field(doc, key, path)
+    if isinstance(val, bool) or not isinstance(val, (int, float)) or val != int(val) or val <= 0:
+        raise CalibrationError(f"{path}: field '{key}' must be a positive integer (px), got {val!r}")
+    return int(val)
+
+
 def load_calibration(path: str | Path) -> Calibration:
     """Load a ROS ``camera_info`` / EMSGC style calibration YAML.
 
@@ -120,11 +127,14 @@ def load_calibration(path: str | Path) -> Calibration:
     except FileNotFoundError:
         raise CalibrationError(f"{path}: calibration file not found") from None
     except yaml.YAMLError as exc:
-        raise CalibrationError(f"{path}: not valid YAML ({exc})") from None
+        mark = getattr(exc, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        problem = getattr(exc, "problem", None) or type(exc).__name__
+        raise CalibrationError(f"{path}: not valid YAML{where}: {problem}") from None
     if not isinstance(doc, dict):
         raise CalibrationError(f"{path}: expected a mapping of calibration fields, got {type(doc).__name__}")
-    width = int(_field(doc, "image_width", path))
-    height = int(_field(doc, "image_height", path))
+    width = _positive_int(doc, "image_width", path)
+    height = _positive_int(doc, "image_height", path)
     K = _matrix_data(doc, "camera_matrix", path)
     if K.size != 9:
         raise CalibrationError(f"{path}: field 'camera_matrix.data' needs 9 numbers (3x3), got {K.size}")
@@ -134,6 +144,9 @@ def load_calibration(path: str | Path) -> Calibration:
             f"{path}: field 'distortion_model' = '{model}' is not supported (use radtan/plumb_bob)"
         )
     D = _matrix_data(doc, "distortion_coefficients", path) if "distortion_coefficients" in doc else np.zeros(4)
+    for name, arr in (("camera_matrix", K), ("distortion_coefficients", D)):
+        if not np.all(np.isfinite(arr)):
+            raise CalibrationError(f"{path}: field '{name}.data' contains NaN or inf: {arr.tolist()}")
     if D.size not in (4, 5, 8):
         raise CalibrationError(
             f"{path}: field 'distortion_coefficients.data' needs 4 or 5 numbers, got {D.size}"

@@ -113,8 +113,8 @@ def test_missing_calibration_file(tmp_path, capsys, sim_files):
     _segment_fails_cleanly(capsys, tmp_path, recording, ["--calib", str(calib)], [str(calib), "not found"])
 
 
-# Bugs found here, in evseg/calibration.py (not this helper's file): strict xfail so that the fix
-# is noticed (remove the marker then).
+# Found by these tests and fixed in evseg/calibration.py: non-integer sizes, NaN distortion,
+# multi-line YAML parser messages.
 CALIBRATION_BUGS = {
     "width not a number": (SIZE.replace("128", "abc") + GOOD_K, "image_width"),
     "width a list": (SIZE.replace("128", "[1, 2]") + GOOD_K, "image_width"),
@@ -124,9 +124,6 @@ CALIBRATION_BUGS = {
 }
 
 
-@pytest.mark.xfail(strict=True, reason="evseg/calibration.py: int() of image_width/height raises a bare "
-                   "ValueError/TypeError (internal error, exit 1); NaN in D is accepted (K is checked, D is not); "
-                   "the YAML parser's multi-line message is printed as is")
 @pytest.mark.parametrize("name", sorted(CALIBRATION_BUGS))
 def test_bad_calibration_known_bugs(name, tmp_path, capsys, sim_files):
     _, recording, _ = sim_files
