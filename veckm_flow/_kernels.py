@@ -119,62 +119,55 @@ def box_pass(field, count, row_used, phase_xy, k, cum, ccum, nblk):  # pragma: n
 
 
 @njit(cache=True, parallel=True, fastmath=True)
-def window_sums(cum, ccum, k, tx, ty):  # pragma: no cover
-    """Window sums at the targets from the box-pass output: ``(acc (T, 2, d), cnt (T,))``,
-    the column sum at row ``min(ty + k, H - 1)`` minus the one at row ``ty - k - 1``."""
+def target_features(cum, ccum, k, tx, ty, tdt, slot, phase_xy, hi, lo, lo_bits):  # pragma: no cover
+    """Features (T, 2d+1) float32 of the targets; row ``slot[r]`` holds target r.
+
+    Window sum = column sum at row ``min(ty + k, H - 1)`` minus the one at row ``ty - k - 1``;
+    then the target's own absolute phase is removed (multiply by ``conj(phase_xy * hi * lo)``),
+    the vector rescaled to norm sqrt(d) and ``log(1 + n)`` appended. Callers pass the targets
+    in row order (``slot`` maps back), so the reads walk the grid forward.
+    """
     H = ccum.shape[0]
     d = cum.shape[3]
-    nt = tx.shape[0]
-    acc = np.empty((nt, 2, d), np.float32)
-    cnt = np.empty(nt, np.int64)
-    for r in prange(nt):
-        xx = tx[r]
-        y1 = min(ty[r] + k, H - 1)
-        y0 = ty[r] - k - 1
-        if y0 >= 0:
-            cnt[r] = ccum[y1, xx] - ccum[y0, xx]
-            for m in range(d):
-                acc[r, 0, m] = cum[y1, xx, 0, m] - cum[y0, xx, 0, m]
-                acc[r, 1, m] = cum[y1, xx, 1, m] - cum[y0, xx, 1, m]
-        else:
-            cnt[r] = ccum[y1, xx]
-            for m in range(d):
-                acc[r, 0, m] = cum[y1, xx, 0, m]
-                acc[r, 1, m] = cum[y1, xx, 1, m]
-    return acc, cnt
-
-
-@njit(cache=True, parallel=True, fastmath=True)
-def finish_features(acc, cnt, tx, ty, tdt, phase_xy, hi, lo, lo_bits):  # pragma: no cover
-    """Features (T, 2d+1) float32 from window sums: remove the target's own absolute phase
-    (multiply by ``conj(phase_xy * hi * lo)``), rescale to norm sqrt(d), append log(1 + n)."""
-    nt = acc.shape[0]
-    d = acc.shape[2]
     mask = (1 << lo_bits) - 1
+    nt = tx.shape[0]
     out = np.empty((nt, 2 * d + 1), np.float32)
     scale = np.sqrt(np.float32(d))
     for r in prange(nt):
+        o = slot[r]
         xx = tx[r]
         yy = ty[r]
+        y1 = min(yy + k, H - 1)
+        y0 = yy - k - 1
         h = tdt[r] >> lo_bits
         l = tdt[r] & mask
+        cnt = ccum[y1, xx]
+        if y0 >= 0:
+            cnt -= ccum[y0, xx]
+            for m in range(d):
+                out[o, m] = cum[y1, xx, 0, m] - cum[y0, xx, 0, m]
+                out[o, d + m] = cum[y1, xx, 1, m] - cum[y0, xx, 1, m]
+        else:
+            for m in range(d):
+                out[o, m] = cum[y1, xx, 0, m]
+                out[o, d + m] = cum[y1, xx, 1, m]
         s = np.float32(0.0)
         for m in range(d):
+            gr = out[o, m]
+            gi = out[o, d + m]
             tr = hi[h, 0, m] * lo[l, 0, m] - hi[h, 1, m] * lo[l, 1, m]
             ti = hi[h, 0, m] * lo[l, 1, m] + hi[h, 1, m] * lo[l, 0, m]
             pr = phase_xy[yy, xx, 0, m] * tr - phase_xy[yy, xx, 1, m] * ti
             pi = -(phase_xy[yy, xx, 0, m] * ti + phase_xy[yy, xx, 1, m] * tr)
-            gr = acc[r, 0, m]
-            gi = acc[r, 1, m]
             vr = gr * pr - gi * pi
             vi = gr * pi + gi * pr
-            out[r, m] = vr
-            out[r, d + m] = vi
+            out[o, m] = vr
+            out[o, d + m] = vi
             s += vr * vr + vi * vi
         f = scale / max(np.sqrt(s), np.float32(1e-12))
         for m in range(2 * d):
-            out[r, m] *= f
-        out[r, 2 * d] = np.log1p(np.float32(cnt[r]))
+            out[o, m] *= f
+        out[o, 2 * d] = np.log1p(np.float32(cnt))
     return out
 
 
