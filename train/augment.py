@@ -183,8 +183,13 @@ class AugmentConfig:
     """Random augmentation drawn per slice (all ranges inclusive, uniform unless stated).
 
     Attributes:
-        rotation: rotate by an angle uniform in [0, 2 pi) (the head must be rotation
-            equivariant in practice; VecKM_flow trains with the same augmentation).
+        rotation: rotate by a random angle (the head must be rotation equivariant in practice;
+            VecKM_flow trains with the same augmentation).
+        rotation_step_deg: 0 draws the angle uniformly in [0, 360) deg; a step such as 90
+            draws a multiple of it. Right angles (with ``flip``, the 8 symmetries of the pixel
+            grid) move events exactly; other angles round positions to the grid, which merges
+            and skips pixels: a resampling pattern real sensors never show, which a network
+            can pick up (the same holds for ``scale_range`` away from 1).
         flip: mirror columns and rows, each with probability 1/2.
         scale_range: spatial scale factor (log-uniform).
         time_scale_range: time stretch factor (log-uniform); flow divides by it.
@@ -193,6 +198,7 @@ class AugmentConfig:
     """
 
     rotation: bool = True
+    rotation_step_deg: float = 0.0
     flip: bool = True
     scale_range: tuple[float, float] = (0.8, 1.25)
     time_scale_range: tuple[float, float] = (0.5, 2.0)
@@ -235,13 +241,22 @@ class AugmentDraw:
     noise_rate_ev_px_s: float = 0.0
 
 
+def _draw_angle(cfg: AugmentConfig, rng: np.random.Generator) -> float:
+    if not cfg.rotation:
+        return 0.0
+    if cfg.rotation_step_deg > 0:
+        steps = max(1, int(round(360.0 / cfg.rotation_step_deg)))
+        return float(np.radians(int(rng.integers(steps)) * 360.0 / steps))
+    return float(rng.uniform(0.0, 2 * np.pi))
+
+
 def draw_augmentation(cfg: AugmentConfig, rng: np.random.Generator) -> AugmentDraw:
     """Draw the parameters of one augmentation from ``cfg``."""
     return AugmentDraw(
         keep_fraction=float(rng.uniform(*cfg.keep_range)),
         time_scale=_log_uniform(rng, *cfg.time_scale_range),
         scale=_log_uniform(rng, *cfg.scale_range),
-        angle_rad=float(rng.uniform(0.0, 2 * np.pi)) if cfg.rotation else 0.0,
+        angle_rad=_draw_angle(cfg, rng),
         flip_horizontal=bool(rng.integers(2)) if cfg.flip else False,
         flip_vertical=bool(rng.integers(2)) if cfg.flip else False,
         noise_rate_ev_px_s=float(rng.uniform(*cfg.noise_rate_range)),

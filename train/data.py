@@ -61,14 +61,15 @@ class SliceSpec:
     """How slices and targets are drawn from one recording.
 
     Attributes:
-        slice_us: duration of one slice in microseconds (VecKM_flow's ~20 ms); the encoder's
-            neighbourhoods only see events of the same slice.
+        slice_us: ``[min, max]`` duration of one slice in microseconds, drawn uniformly per
+            slice (the pipeline estimates flow per 10 ms window, VecKM_flow uses ~20 ms); the
+            encoder's neighbourhoods only see events of the same slice.
         slices_per_scene: slices cut from each recording (random starts, each augmented anew).
         max_targets_per_slice: targets kept per slice (uniform subsample of the eligible ones).
         targets: keyword arguments of :func:`evseg.veckm_flow.select_targets`.
     """
 
-    slice_us: int = 20_000
+    slice_us: tuple[int, int] = (10_000, 20_000)
     slices_per_scene: int = 8
     max_targets_per_slice: int = 2048
     targets: dict[str, Any] | None = None
@@ -125,17 +126,18 @@ def draw_slices(
 ) -> list[FlowSlice]:
     """Cut ``spec.slices_per_scene`` augmented slices of ``spec.slice_us`` from a recording.
 
-    The time scale is drawn first: a stretch of ``slice_us / time_scale`` is cut and then
-    stretched, so every slice spans ``slice_us`` after augmentation. Starts are uniform over
-    the recording.
+    The duration ``D`` (uniform in ``spec.slice_us``) and the time scale are drawn first: a
+    stretch of ``D / time_scale`` is cut and then stretched, so every slice spans ``D`` after
+    augmentation. Starts are uniform over the recording.
     """
     if len(rec) == 0:
         return []
     t_first, t_last = int(rec.events["t"][0]), int(rec.events["t"][-1])
     out = []
     for _ in range(spec.slices_per_scene):
+        duration_us = int(rng.integers(spec.slice_us[0], spec.slice_us[1] + 1))
         draw = draw_augmentation(augment, rng)
-        length = max(1, int(round(spec.slice_us / draw.time_scale)))
+        length = max(1, int(round(duration_us / draw.time_scale)))
         t0 = int(rng.integers(t_first, max(t_first + 1, t_last - length + 1)))
         s = apply_augmentation(recording_slice(rec, t0, t0 + length), draw, rng)
         if len(s):
@@ -340,7 +342,9 @@ def build_shards(jobs: list[tuple], num_workers: int, progress: bool = False) ->
 
 
 def _single_thread() -> None:
+    # Set before numba/torch start their thread pools in this fresh (spawned) process.
     os.environ["OMP_NUM_THREADS"] = "1"
+    os.environ["NUMBA_NUM_THREADS"] = "1"
     try:
         import torch
 
@@ -485,6 +489,7 @@ class NormalFlowDataModule(_lightning_datamodule_base()):
                 raise ConfigError("data: the training scenes produced no target with ground truth")
 
     def _loader(self, ds: FlowTargetDataset, shuffle: bool):
+        import torch
         from torch.utils.data import DataLoader
 
         return DataLoader(
@@ -495,6 +500,7 @@ class NormalFlowDataModule(_lightning_datamodule_base()):
             collate_fn=collate_batch,
             num_workers=self.num_workers,
             persistent_workers=self.num_workers > 0,
+            pin_memory=torch.cuda.is_available(),
         )
 
     def train_dataloader(self):

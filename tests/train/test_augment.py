@@ -109,3 +109,17 @@ def test_bad_factors_raise():
         scale_slice(_slice(), 0.0)
     with pytest.raises(ValueError):
         time_scale_slice(_slice(), -1.0)
+
+
+def test_right_angle_rotations_are_exact_grid_symmetries():
+    from evseg.train.augment import draw_augmentation
+
+    cfg = AugmentConfig(rotation_step_deg=90.0)
+    angles = {round(np.degrees(draw_augmentation(cfg, np.random.default_rng(i)).angle_rad)) for i in range(64)}
+    assert angles == {0, 90, 180, 270}
+    # A square sensor: a quarter turn keeps every event (no rounding, nothing off the sensor).
+    ev = make_events(x=[0, 3, 7, 2], y=[0, 5, 7, 6], t=[0, 1, 2, 3], p=[1, 1, -1, 1])
+    s = FlowSlice(ev, (8, 8), np.ones((4, 2), np.float32))
+    r = rotate_slice(s, np.pi / 2)
+    assert len(r) == 4
+    assert sorted(zip(r.events["x"].tolist(), r.events["y"].tolist())) == sorted([(7, 0), (2, 3), (0, 7), (1, 2)])

@@ -1,0 +1,403 @@
+"""Accuracy of the learned normal flow: held-out simulated scenes and real recordings.
+
+Simulated (:func:`evaluate_flow`, ``evseg eval flow``): every simulator preset, seeds >= 1000
+(never used in training), cut into back-to-back slices of ``slice_us`` (the pipeline's window).
+Targets are chosen as ``evseg flow`` chooses them (:func:`~evseg.veckm_flow.select_targets`,
+latest event per ``cell_px`` cell) among events with ground-truth normal flow (noise events and
+flat-gradient pixels have none). The learned model (:class:`~evseg.veckm_flow.OnnxNormalFlow`,
+the shipped ONNX file by default) and the plane-fit baseline
+(:class:`~evseg.veckm_flow.PlaneFitNormalFlow`) see the same slices and the same targets.
+
+Columns (angles in degrees; "common" = the targets where the baseline gives a flow, because
+it rejects some fits and the comparison must be on the same events):
+
+- ``targets``: targets with ground truth; ``baseline_kept``: share the baseline accepts;
+- ``ae_learned``: median angular error of the learned flow vs GT normal flow (all targets);
+- ``ae_learned_common``, ``ae_baseline``: the same on the common targets;
+- ``ae_reduction``: ``1 - ae_learned_common / ae_baseline`` (target: >= 0.30);
+- ``sign_learned``, ``sign_baseline``: share with ``p . n > 0`` (common targets);
+- ``relmag_learned``, ``relmag_baseline``: median ``| |p| - |n| | / |n|`` (common targets);
+- ``normerr_learned``, ``normerr_baseline``: median VecKM_flow norm error
+  ``| |p| - (p . u) / |p| |`` against GT optical flow ``u``, px/s (common targets);
+- ``ae_learned_keep80``: median angular error of the 80 % least uncertain learned flows;
+  ``uncertainty_gain``: ``1 - ae_learned_keep80 / ae_learned`` (target: >= 0.25).
+
+The ``overall`` row pools the targets of all presets.
+
+Real recordings without ground truth (:func:`evaluate_flow_real`, ``evseg eval flow-real``):
+the label-free warp sharpness (:func:`evseg.metrics.warp_sharpness`: variance of the image of
+events moved along their flow to the slice's middle, over that of the unmoved events) of both
+estimators on the targets where both give a flow, median over slices.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from evseg.metrics import angular_error_deg, norm_error, relative_magnitude_error, warp_sharpness
+
+HELD_OUT_SEED_START = 1000
+
+
+@dataclass(frozen=True)
+class FlowEvalConfig:
+    """What :func:`evaluate_flow` runs on.
+
+    Attributes:
+        presets: simulator presets (empty: all of :func:`evseg.simulator.list_scene_presets`).
+        seeds: scene seeds per preset (all >= 1000: held out from training).
+        duration_us: simulated duration per scene, microseconds.
+        slice_us: slice duration, microseconds (the pipeline's 10 ms window).
+        cell_px: target selection cell, px (as ``evseg flow``).
+        max_targets_per_slice: uniform subsample per slice (bounds the run time).
+        drop_fraction: share of most uncertain learned flows dropped for ``ae_learned_keep80``.
+    """
+
+    presets: tuple[str, ...] = ()
+    seeds: tuple[int, ...] = (1000, 1001, 1002, 1003)
+    duration_us: int = 200_000
+    slice_us: int = 10_000
+    cell_px: int = 2
+    max_targets_per_slice: int = 2000
+    drop_fraction: float = 0.2
+
+    def __post_init__(self) -> None:
+        bad = [s for s in self.seeds if s < HELD_OUT_SEED_START]
+        if bad:
+            raise ValueError(f"evaluation seeds must be >= {HELD_OUT_SEED_START} (held out from training), got {bad}")
+
+
+QUICK = FlowEvalConfig(seeds=(1000,), duration_us=60_000)
+
+
+@dataclass
+class _Collected:
+    """Per-target arrays of one preset (learned, baseline, ground truth)."""
+
+    learned: list = field(default_factory=list)  # (T, 2) px/s
+    uncertainty: list = field(default_factory=list)  # (T,)
+    baseline: list = field(default_factory=list)  # (T, 2) px/s, NaN where rejected
+    normal_flow: list = field(default_factory=list)  # (T, 2) px/s
+    optical_flow: list = field(default_factory=list)  # (T, 2) px/s
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        def cat(v, shape):
+            return np.concatenate(v) if v else np.zeros(shape, np.float32)
+
+        return {
+            "learned": cat(self.learned, (0, 2)),
+            "uncertainty": cat(self.uncertainty, (0,)),
+            "baseline": cat(self.baseline, (0, 2)),
+            "normal_flow": cat(self.normal_flow, (0, 2)),
+            "optical_flow": cat(self.optical_flow, (0, 2)),
+        }
+
+
+def _median(v: np.ndarray) -> float:
+    return float(np.median(v)) if len(v) else float("nan")
+
+
+def flow_accuracy_row(a: dict[str, np.ndarray], drop_fraction: float = 0.2) -> dict:
+    """Metrics of one set of targets (see the module docstring for the columns).
+
+    Args:
+        a: ``learned``, ``baseline``, ``normal_flow``, ``optical_flow`` (T, 2) px/s and
+            ``uncertainty`` (T,); baseline rows are NaN where it rejected the target.
+    """
+    p, b, n, u = a["learned"], a["baseline"], a["normal_flow"], a["optical_flow"]
+    common = np.all(np.isfinite(b), axis=1)
+    ae = angular_error_deg(p, n)
+    ae_b = angular_error_deg(b[common], n[common])
+    keep = np.ones(len(p), bool)
+    if len(p):
+        # Drop the most uncertain share: keep the flows whose uncertainty ranks below it.
+        order = np.argsort(a["uncertainty"], kind="stable")
+        keep[:] = False
+        keep[order[: int(round((1.0 - drop_fraction) * len(p)))]] = True
+    ae_all = _median(ae)
+    ae_keep = _median(ae[keep])
+    ae_common = _median(ae[common])
+    ae_base = _median(ae_b)
+
+    def sign(x, y):
+        return float(np.mean(np.sum(x * y, axis=1) > 0)) if len(x) else float("nan")
+
+    return {
+        "targets": int(len(p)),
+        "baseline_kept": float(np.mean(common)) if len(p) else float("nan"),
+        "ae_learned": ae_all,
+        "ae_learned_common": ae_common,
+        "ae_baseline": ae_base,
+        "ae_reduction": 1.0 - ae_common / ae_base if ae_base > 0 else float("nan"),
+        "sign_learned": sign(p[common], n[common]),
+        "sign_baseline": sign(b[common], n[common]),
+        "relmag_learned": _median(relative_magnitude_error(p[common], n[common])),
+        "relmag_baseline": _median(relative_magnitude_error(b[common], n[common])),
+        "normerr_learned": _median(norm_error(p[common], u[common])),
+        "normerr_baseline": _median(norm_error(b[common], u[common])),
+        "ae_learned_keep80": ae_keep,
+        "uncertainty_gain": 1.0 - ae_keep / ae_all if ae_all > 0 else float("nan"),
+    }
+
+
+Estimator = Callable[..., object]
+"""``est(events, sensor_size, targets) -> NormalFlow`` (index, nx, ny, uncertainty)."""
+
+
+def _flows(est: Estimator, events: np.ndarray, sensor_size, targets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    res = est(events, sensor_size, targets)
+    if not np.array_equal(np.asarray(res.index), targets):
+        raise RuntimeError("estimator returned flows for other events than the targets it was given")
+    return np.stack([res.nx, res.ny], axis=1).astype(np.float64), np.asarray(res.uncertainty, np.float64)
+
+
+def collect_scene(rec, learned: Estimator, baseline: Estimator, cfg: FlowEvalConfig, out: _Collected) -> None:
+    """Run both estimators on the slices of one simulated recording; append to ``out``."""
+    from evseg.veckm_flow.targets import select_targets
+
+    ev = rec.stream.events
+    sensor = rec.stream.sensor_size
+    nf_all = np.asarray(rec.normal_flow, np.float64)
+    of_all = np.asarray(rec.flow, np.float64)
+    t = ev["t"]
+    if len(ev) == 0:
+        return
+    for k, t0 in enumerate(range(int(t[0]), int(t[-1]) + 1, cfg.slice_us)):
+        a, b = np.searchsorted(t, [t0, t0 + cfg.slice_us])
+        if b - a < 2:
+            continue
+        e, nf, of = ev[a:b], nf_all[a:b], of_all[a:b]
+        idx = select_targets(e, sensor, cell_px=cfg.cell_px)
+        ok = np.all(np.isfinite(nf[idx]), axis=1) & (np.linalg.norm(np.nan_to_num(nf[idx]), axis=1) > 0)
+        idx = idx[ok]
+        if len(idx) > cfg.max_targets_per_slice:
+            rng = np.random.default_rng([int(t0), k])
+            idx = np.sort(rng.choice(idx, cfg.max_targets_per_slice, replace=False))
+        if len(idx) == 0:
+            continue
+        p, unc = _flows(learned, e, sensor, idx)
+        bflow, _ = _flows(baseline, e, sensor, idx)
+        out.learned.append(p)
+        out.uncertainty.append(unc)
+        out.baseline.append(bflow)
+        out.normal_flow.append(nf[idx])
+        out.optical_flow.append(of[idx])
+
+
+def evaluate_estimators(learned: Estimator, baseline: Estimator, cfg: FlowEvalConfig) -> list[dict]:
+    """Rows per preset and an ``overall`` row (pooled targets) for two estimators."""
+    from evseg.simulator import list_scene_presets, load_scene_preset, simulate
+
+    presets = list(cfg.presets) or list(list_scene_presets())
+    rows, pooled = [], _Collected()
+    for preset in presets:
+        col = _Collected()
+        for seed in cfg.seeds:
+            rec = simulate(load_scene_preset(preset), seed=seed, duration_us=cfg.duration_us)
+            collect_scene(rec, learned, baseline, cfg, col)
+        rows.append({"preset": preset, **flow_accuracy_row(col.arrays(), cfg.drop_fraction)})
+        for name in ("learned", "uncertainty", "baseline", "normal_flow", "optical_flow"):
+            getattr(pooled, name).extend(getattr(col, name))
+    rows.append({"preset": "overall", **flow_accuracy_row(pooled.arrays(), cfg.drop_fraction)})
+    return rows
+
+
+def _estimators(model_path: str | Path | None):
+    from evseg.veckm_flow.baseline import PlaneFitNormalFlow
+    from evseg.veckm_flow.inference import OnnxNormalFlow
+
+    return OnnxNormalFlow(model_path), PlaneFitNormalFlow()
+
+
+def evaluate_flow(quick: bool = False, model_path: str | Path | None = None) -> list[dict]:
+    """``evseg eval flow``: learned (shipped model by default) vs plane fit on held-out scenes."""
+    learned, baseline = _estimators(model_path)
+    return evaluate_estimators(learned, baseline, QUICK if quick else FlowEvalConfig())
+
+
+# --------------------------------------------------------------------------- real recordings
+
+REAL_RECORDINGS = (
+    "ecd_poster/poster_translation.npz",
+    "dvs128_single_motion/building.mat",
+    "dvs128_single_motion/stripes.mat",
+    "eed_what_is_background/events_t_us_x_y_on.npy",
+)
+"""Recordings under the shared data folder (``EVSEG_SHARED_DATA`` or ``../shared/data``)."""
+
+
+def shared_data_dir() -> Path:
+    import os
+
+    env = os.environ.get("EVSEG_SHARED_DATA")
+    if env:
+        return Path(env)
+    return Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
+
+
+def recording_slices(events: np.ndarray, slice_us: int, max_slices: int) -> list[tuple[int, int]]:
+    """``(start, stop)`` event positions of up to ``max_slices`` back-to-back slices, spread
+    evenly over the recording (every k-th slice)."""
+    t = events["t"]
+    if len(t) == 0:
+        return []
+    starts = np.arange(int(t[0]), int(t[-1]) + 1, slice_us)
+    bounds = [tuple(int(v) for v in np.searchsorted(t, [s, s + slice_us])) for s in starts]
+    bounds = [b for b in bounds if b[1] - b[0] >= 100]  # too few events to judge sharpness
+    if len(bounds) > max_slices:
+        pick = np.linspace(0, len(bounds) - 1, max_slices).round().astype(int)
+        bounds = [bounds[i] for i in pick]
+    return bounds
+
+
+def sharpness_of_slice(
+    events: np.ndarray, sensor_size, learned: Estimator, baseline: Estimator, cell_px: int = 2
+) -> tuple[float, float, int]:
+    """Warp sharpness of learned and baseline flow on the targets both estimate; and their count."""
+    from evseg.veckm_flow.targets import select_targets
+
+    idx = select_targets(events, sensor_size, cell_px=cell_px)
+    p, _ = _flows(learned, events, sensor_size, idx)
+    b, _ = _flows(baseline, events, sensor_size, idx)
+    ok = np.all(np.isfinite(p), axis=1) & np.all(np.isfinite(b), axis=1)
+    e = events[idx[ok]]
+    shape = (sensor_size[1], sensor_size[0])
+    x, y, t = e["x"], e["y"], e["t"]
+    return warp_sharpness(x, y, t, p[ok], shape), warp_sharpness(x, y, t, b[ok], shape), int(ok.sum())
+
+
+def evaluate_estimators_real(
+    learned: Estimator, baseline: Estimator, root: Path, slice_us: int = 10_000, max_slices: int = 20
+) -> list[dict]:
+    """Rows per real recording: median warp sharpness of both estimators over slices."""
+    from evseg.io import read_events
+
+    rows = []
+    for rel in REAL_RECORDINGS:
+        path = root / rel
+        if not path.is_file():
+            continue
+        stream = read_events(path)
+        ls, bs, n = [], [], 0
+        for a, b in recording_slices(stream.events, slice_us, max_slices):
+            sl, sb, k = sharpness_of_slice(stream.events[a:b], stream.sensor_size, learned, baseline)
+            if np.isfinite(sl) and np.isfinite(sb):
+                ls.append(sl)
+                bs.append(sb)
+                n += k
+        rows.append({
+            "recording": rel,
+            "slices": len(ls),
+            "targets": n,
+            "sharpness_learned": _median(np.array(ls)),
+            "sharpness_baseline": _median(np.array(bs)),
+            "learned_sharper_share": float(np.mean(np.array(ls) >= np.array(bs))) if ls else float("nan"),
+        })
+    return rows
+
+
+def evaluate_flow_real(quick: bool = False, model_path: str | Path | None = None) -> list[dict]:
+    """``evseg eval flow-real``: label-free warp sharpness on the shared real recordings."""
+    from evseg.errors import EvsegError
+
+    root = shared_data_dir()
+    if not root.is_dir():
+        raise EvsegError(f"real recordings not found at {root} (set EVSEG_SHARED_DATA)")
+    learned, baseline = _estimators(model_path)
+    return evaluate_estimators_real(learned, baseline, root, max_slices=5 if quick else 20)
+
+
+# --------------------------------------------------------------------------- pictures
+
+
+def flow_colors(flow_px_s: np.ndarray, max_px_s: float) -> np.ndarray:
+    """Colour-wheel BGR uint8 (T, 3): hue = direction (x right, y down), value = speed
+    (saturating at ``max_px_s``)."""
+    import cv2
+
+    ang = (np.degrees(np.arctan2(flow_px_s[:, 1], flow_px_s[:, 0])) % 360.0) / 2.0  # OpenCV hue 0..180
+    mag = np.clip(np.linalg.norm(flow_px_s, axis=1) / max(max_px_s, 1e-9), 0, 1)
+    hsv = np.stack([ang, np.full_like(ang, 255), 80 + 175 * mag], axis=1).astype(np.uint8)
+    return cv2.cvtColor(hsv[None], cv2.COLOR_HSV2BGR)[0]
+
+
+def color_wheel(size: int) -> np.ndarray:
+    """A BGR legend of the colour wheel, ``(size, size, 3)`` (black outside the disc)."""
+    yy, xx = np.mgrid[0:size, 0:size].astype(np.float64)
+    c = (size - 1) / 2.0
+    f = np.stack([(xx - c).ravel(), (yy - c).ravel()], axis=1)
+    img = flow_colors(f, c).reshape(size, size, 3)
+    img[np.hypot(xx - c, yy - c) > c] = 0
+    return img
+
+
+def flow_picture(events: np.ndarray, sensor_size, flows: dict[str, np.ndarray], scale: int = 2) -> np.ndarray:
+    """Side-by-side colour-wheel images of several flows of the same target events.
+
+    Args:
+        events: the target events (T,) of one slice.
+        flows: name -> (T, 2) px/s (NaN rows are not drawn).
+        scale: integer upscaling of each panel (small sensors).
+
+    Returns:
+        BGR uint8 image: one panel per flow with its name and a colour-wheel legend.
+    """
+    import cv2
+
+    w, h = sensor_size
+    finite = [f[np.all(np.isfinite(f), axis=1)] for f in flows.values()]
+    speeds = np.concatenate([np.linalg.norm(f, axis=1) for f in finite]) if finite else np.zeros(0)
+    vmax = float(np.percentile(speeds, 95)) if len(speeds) else 1.0
+    panels = []
+    for name, f in flows.items():
+        img = np.zeros((h, w, 3), np.uint8)
+        ok = np.all(np.isfinite(f), axis=1)
+        img[events["y"][ok], events["x"][ok]] = flow_colors(f[ok], vmax)
+        img = cv2.resize(img, (w * scale, h * scale), interpolation=cv2.INTER_NEAREST)
+        legend = color_wheel(max(24, 12 * scale))
+        img[: legend.shape[0], -legend.shape[1]:] = legend
+        cv2.putText(img, name, (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1, cv2.LINE_AA)
+        panels.append(img)
+    sep = np.full((h * scale, 4, 3), 255, np.uint8)
+    out = panels[0]
+    for p in panels[1:]:
+        out = np.concatenate([out, sep, p], axis=1)
+    return out
+
+
+def save_real_pictures(out_dir: str | Path, model_path: str | Path | None = None, slice_us: int = 10_000) -> list[Path]:
+    """Write ``flow_<recording>.png`` per shared real recording (learned | plane fit) into
+    ``out_dir``, from the middle slice of each recording. Returns the paths written."""
+    import cv2
+
+    from evseg.io import read_events
+    from evseg.veckm_flow.targets import select_targets
+
+    learned, baseline = _estimators(model_path)
+    root = shared_data_dir()
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written = []
+    for rel in REAL_RECORDINGS:
+        path = root / rel
+        if not path.is_file():
+            continue
+        stream = read_events(path)
+        bounds = recording_slices(stream.events, slice_us, 10**9)
+        if not bounds:
+            continue
+        a, b = bounds[len(bounds) // 2]
+        e = stream.events[a:b]
+        idx = select_targets(e, stream.sensor_size, cell_px=1)
+        p, _ = _flows(learned, e, stream.sensor_size, idx)
+        q, _ = _flows(baseline, e, stream.sensor_size, idx)
+        scale = 3 if max(stream.sensor_size) <= 128 else 2
+        img = flow_picture(e[idx], stream.sensor_size, {"learned": p, "plane fit": q}, scale=scale)
+        name = f"flow_{Path(rel).parent.name}_{Path(rel).stem}.png"
+        cv2.imwrite(str(out_dir / name), img, [cv2.IMWRITE_PNG_COMPRESSION, 9])
+        written.append(out_dir / name)
+    return written
