@@ -108,6 +108,8 @@ class SegmentationConfig:
     """Fast sampling: candidate models from distinct normal flows without prediction."""
     n_sampled_with_prediction: int = 6
     """Fast sampling: candidates when motion prediction supplied at least one candidate."""
+    n_resampled: int = 4
+    """Round 0b: candidates sampled again among the nodes no fitted candidate explains (0 = off)."""
     sampling_flow: str = "local"
     """Translation vector of a node for fast sampling: 'local' = least-squares translation of
     its Delaunay 1-ring (resolves the aperture problem; see initialization.py), 'normal' = its
@@ -141,7 +143,7 @@ class SegmentationConfig:
         _check_choice("mask_method", self.mask_method, MASK_METHODS)
         _check_choice("potts_weighting", self.potts_weighting, POTTS_WEIGHTINGS)
         _check_choice("sampling_flow", self.sampling_flow, SAMPLING_FLOWS)
-        for name in ("cell_px", "min_flow_px_s", "residual_scale_px_s", "residual_scale_rel",
+        for name in ("n_resampled", "cell_px", "min_flow_px_s", "residual_scale_px_s", "residual_scale_rel",
                      "lambda_p", "lambda_m", "lm_damping", "mask_dilate_px", "merge_tol"):
             if getattr(self, name) < 0:
                 raise ConfigError(f"SegmentationConfig.{name} must be >= 0, got {getattr(self, name)}")

@@ -64,7 +64,8 @@ def split_objects(
     Two objects moving alike share one motion label; on the image they are separate connected
     parts of it. Each part with at least ``min_nodes`` nodes (and at least a quarter of the
     label's largest part) becomes an object with a copy of the label's model; smaller
-    fragments keep the label of the label's largest part and stay out of its region.
+    fragments keep the label of the label's largest part and stay out of its region. A label
+    with no part of ``min_nodes`` nodes is dropped and its nodes become -1.
 
     Args:
         labels: (M,) 0 = background, 1..K objects, -1 unassigned. edges: (E, 2).
@@ -92,7 +93,8 @@ def split_objects(
             continue
         ids, sizes = np.unique(comp[nodes], return_counts=True)
         big = (sizes >= min_nodes) & (sizes >= 0.25 * sizes.max())
-        big[np.argmax(sizes)] = True
+        if not big.any():
+            continue  # scattered nodes only (e.g. outliers one model happens to fit): unassigned
         for c, n in zip(ids[big], sizes[big]):
             parts.append((int(n), k, int(c)))
         fragments[k] = (int(ids[np.argmax(sizes)]), ids[~big])

@@ -14,6 +14,10 @@ Order of the steps (our choice where the paper is silent):
    refitted by LM to those nodes. Sampled candidates are pure translations equal to one normal
    flow; one robust refit turns each into the motion of the nodes it best explains, which keeps
    the label cost from deleting an object's only candidate before it was ever fitted.
+   Round 0b: the nodes that no fitted candidate explains (data cost at the truncation) are
+   sampled again (``n_resampled`` candidates from their translations), and round 0 is repeated
+   with the extra candidates: a small object whose flow vectors drown among the background's
+   (strong divergence near the image border) gets its candidate there.
 4. Rounds 1..max_rounds: alpha-expansion from the current labeling, drop empty labels, LM refit;
    a refitted model replaces the old one only if it lowers its label's data energy, so the
    energy never increases. Stop when the labeling is unchanged and no model's flow moved more
@@ -202,6 +206,7 @@ def segment_normal_flow(
         predicted = np.concatenate([previous.models[:1], predicted])
     n_sample = cfg.n_sampled_with_prediction if n_object_candidates else cfg.n_sampled
     vx, vy = graph.nx, graph.ny
+    tx = ty = ok = None
     if cfg.sampling_flow == "local" and m:
         tx, ty, ok = local_translations(graph.nx, graph.ny, graph.edges, sigma)
         # Every node votes when no 1-ring is well conditioned (e.g. one straight edge).
@@ -226,6 +231,28 @@ def segment_normal_flow(
         models, data = _refit(models, data, labels, xr, yr, graph, lm_kw, costs, ar)
         models, data, labels = _merge_duplicates(models, data, labels, cfg.merge_tol * sigma, radius,
                                                  graph.edges, edge_w, cfg.lambda_m)
+        if cfg.n_resampled > 0:
+            # Round 0b: sample again among the nodes no fitted model explains (data cost at the
+            # truncation): a small object hidden among the background's flow variations.
+            best = data[ar, labels] / np.maximum(graph.confidence, 1e-12)
+            lost = best >= 0.99 * cfg.truncation ** 2
+            if vx is not graph.nx:
+                lost_ok = lost & ok
+                rx, ry = tx[lost_ok], ty[lost_ok]
+            else:
+                rx, ry = graph.nx[lost], graph.ny[lost]
+            if len(rx) >= cfg.min_object_nodes:
+                extra = fast_sampling(rx, ry, cfg.n_resampled, cfg.sampling_bin * sigma,
+                                      cfg.min_candidate_separation * sigma)
+                if len(extra):
+                    models = np.concatenate([models, extra])
+                    data = costs(models)
+                    labels = np.argmin(data, axis=1)
+                    models, data = _refit(models, data, labels, xr, yr, graph, lm_kw, costs, ar)
+                    models, data, labels = _merge_duplicates(
+                        models, data, labels, cfg.merge_tol * sigma, radius, graph.edges, edge_w,
+                        cfg.lambda_m)
+                    n_candidates += len(extra)
         for n_rounds in range(1, cfg.max_rounds + 1):
             h = np.full(len(models), cfg.lambda_m)
             res = alpha_expansion(labels, data, graph.edges, edge_w, h, cfg.expansion_cycles)

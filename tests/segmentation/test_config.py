@@ -12,7 +12,7 @@ def test_presets_load():
     for name in preset_names():
         cfg = load_segmentation_config(name)
         assert isinstance(cfg, SegmentationConfig)
-    assert load_segmentation_config("outdoor_like").cell_px == 6.0
+    assert load_segmentation_config("outdoor_like").cell_px == 4.0  # the YAML overrides the default 3
 
 
 def test_unknown_key_names_file_and_field(tmp_path):
