@@ -68,13 +68,19 @@ class EncodingConfig:
         xy_scale_px: spatial normalisation, px (coordinates enter as ``x / xy_scale_px``).
         t_scale_us: temporal normalisation, microseconds (times enter as ``t / t_scale_us``).
         seed: seed of ``numpy.random.default_rng`` that draws the random matrix.
+
+    Defaults: chosen on simulated scenes (evimo_like, eed_like, ego_only; 20 ms slices, cell
+    targets, same short training each): a 7x7 window with alpha 2 and 10 ms time scale gave a
+    median angular error of 25 deg against 29 deg for 9x9 and 39-48 deg for 17x17 windows
+    (alpha 2-4); d = 16 instead of 32 cost 7 deg. Textured scenes favour small windows: a
+    large window mixes edges of different orientation.
     """
 
     d: int = 32
-    window_px: int = 8
-    alpha: float = 4.0
-    xy_scale_px: float = 8.0
-    t_scale_us: float = 5000.0
+    window_px: int = 3
+    alpha: float = 2.0
+    xy_scale_px: float = 3.0
+    t_scale_us: float = 10000.0
     seed: int = 0
 
     def __post_init__(self) -> None:

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import torch
 
-EPS = 0.01  # head units; ~ 0.01 * 8 px / 5 ms = 16 px/s: below it magnitudes count as ~equal
+EPS = 0.01  # head units (3 px/s with the default encoding): below it magnitudes count as ~equal
 
 
 def angular_error(pred: torch.Tensor, gt: torch.Tensor) -> torch.Tensor:

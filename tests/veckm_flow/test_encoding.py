@@ -74,7 +74,7 @@ def test_matrix_is_seeded():
 
 
 def test_config_validation_and_roundtrip():
-    cfg = EncodingConfig(d=24, window_px=5, alpha=3.0, t_scale_us=2000.0, seed=7)
+    cfg = EncodingConfig(d=24, window_px=5, alpha=3.0, xy_scale_px=8.0, t_scale_us=2000.0, seed=7)
     assert EncodingConfig.from_dict(cfg.to_dict()) == cfg
     assert cfg.flow_unit_px_s == pytest.approx(8.0 / 0.002)
     with pytest.raises(ConfigError, match="window_px"):
