@@ -42,9 +42,13 @@ class FlowHead(nn.Module):
         in_features: ``F = 2 d + 1`` of the encoding.
         hidden: width of the hidden layers.
         layers: number of hidden layers (>= 1), ReLU after each.
+
+    Size: 64 x 2 (8.6 k parameters) costs ~2.2 ms per 10,000 targets on one core with
+    onnxruntime, 128 x 2 (25 k) ~7 ms; in short trainings on simulated scenes 128 was ~1.3 deg
+    better. The default keeps encoding + network within the 1 M flows/s budget on 2 cores.
     """
 
-    def __init__(self, in_features: int, hidden: int = 128, layers: int = 2) -> None:
+    def __init__(self, in_features: int, hidden: int = 64, layers: int = 2) -> None:
         super().__init__()
         if layers < 1 or hidden < 1 or in_features < 1:
             raise ValueError(f"FlowHead needs positive sizes, got in={in_features} hidden={hidden} layers={layers}")
