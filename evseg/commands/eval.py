@@ -21,6 +21,7 @@ HELP = "evaluate accuracy on held-out simulated scenes and write a markdown tabl
 TARGETS = {
     "seg": "evseg.segmentation.evaluate:evaluate_oracle",
     "flow": "evseg.train.evaluate:evaluate_flow",
+    "flow-real": "evseg.train.evaluate:evaluate_flow_real",
     "pipeline": "evseg.pipeline_eval:evaluate_pipeline",
 }
 
