@@ -22,10 +22,11 @@ from numba import njit, prange
 
 
 @njit(cache=True, parallel=True, fastmath=True)
-def scatter(x, y, dt, hi, lo, lo_bits, field, count, row_used, nblk):  # pragma: no cover
-    """Per-pixel sum of the time phases ``exp(i a_t dt / t_scale) = hi[dt >> b] * lo[dt & mask]``.
+def scatter(x, y, dt, pol, hi, lo, lo_bits, field, count, row_used, nblk):  # pragma: no cover
+    """Per-pixel sum of the time (and polarity) phases ``hi[dt >> b] * lo[pol, dt & mask]``.
 
-    x, y: uint16 (N,) px; dt: int64 (N,) us; hi, lo: float32 (., 2, d) planar tables;
+    x, y: uint16 (N,) px; dt: int64 (N,) us; pol: int8 (N,) index into ``lo`` (0 when the
+    encoding ignores polarity); hi (., 2, d), lo (P, 1024, 2, d): float32 planar tables;
     field: (H, W, 2, d) float32 out; count (H, W) int32 must be zero on entry; row_used (H,)
     bool is set. Threads own bands of rows, so no two threads write the same pixel.
     """
@@ -43,15 +44,16 @@ def scatter(x, y, dt, hi, lo, lo_bits, field, count, row_used, nblk):  # pragma:
             xx = x[j]
             h = dt[j] >> lo_bits
             l = dt[j] & mask
+            q = pol[j]
             row_used[yy] = True
             if count[yy, xx] == 0:
                 for m in range(d):
-                    field[yy, xx, 0, m] = hi[h, 0, m] * lo[l, 0, m] - hi[h, 1, m] * lo[l, 1, m]
-                    field[yy, xx, 1, m] = hi[h, 0, m] * lo[l, 1, m] + hi[h, 1, m] * lo[l, 0, m]
+                    field[yy, xx, 0, m] = hi[h, 0, m] * lo[q, l, 0, m] - hi[h, 1, m] * lo[q, l, 1, m]
+                    field[yy, xx, 1, m] = hi[h, 0, m] * lo[q, l, 1, m] + hi[h, 1, m] * lo[q, l, 0, m]
             else:
                 for m in range(d):
-                    field[yy, xx, 0, m] += hi[h, 0, m] * lo[l, 0, m] - hi[h, 1, m] * lo[l, 1, m]
-                    field[yy, xx, 1, m] += hi[h, 0, m] * lo[l, 1, m] + hi[h, 1, m] * lo[l, 0, m]
+                    field[yy, xx, 0, m] += hi[h, 0, m] * lo[q, l, 0, m] - hi[h, 1, m] * lo[q, l, 1, m]
+                    field[yy, xx, 1, m] += hi[h, 0, m] * lo[q, l, 1, m] + hi[h, 1, m] * lo[q, l, 0, m]
             count[yy, xx] += 1
 
 
@@ -119,7 +121,7 @@ def box_pass(field, count, row_used, phase_xy, k, cum, ccum, nblk):  # pragma: n
 
 
 @njit(cache=True, parallel=True, fastmath=True)
-def target_features(cum, ccum, k, tx, ty, tdt, slot, phase_xy, hi, lo, lo_bits):  # pragma: no cover
+def target_features(cum, ccum, k, tx, ty, tdt, tpol, slot, phase_xy, hi, lo, lo_bits):  # pragma: no cover
     """Features (T, 2d+1) float32 of the targets; row ``slot[r]`` holds target r.
 
     Window sum = column sum at row ``min(ty + k, H - 1)`` minus the one at row ``ty - k - 1``;
@@ -141,6 +143,7 @@ def target_features(cum, ccum, k, tx, ty, tdt, slot, phase_xy, hi, lo, lo_bits):
         y0 = yy - k - 1
         h = tdt[r] >> lo_bits
         l = tdt[r] & mask
+        q = tpol[r]
         cnt = ccum[y1, xx]
         if y0 >= 0:
             cnt -= ccum[y0, xx]
@@ -155,8 +158,8 @@ def target_features(cum, ccum, k, tx, ty, tdt, slot, phase_xy, hi, lo, lo_bits):
         for m in range(d):
             gr = out[o, m]
             gi = out[o, d + m]
-            tr = hi[h, 0, m] * lo[l, 0, m] - hi[h, 1, m] * lo[l, 1, m]
-            ti = hi[h, 0, m] * lo[l, 1, m] + hi[h, 1, m] * lo[l, 0, m]
+            tr = hi[h, 0, m] * lo[q, l, 0, m] - hi[h, 1, m] * lo[q, l, 1, m]
+            ti = hi[h, 0, m] * lo[q, l, 1, m] + hi[h, 1, m] * lo[q, l, 0, m]
             pr = phase_xy[yy, xx, 0, m] * tr - phase_xy[yy, xx, 1, m] * ti
             pi = -(phase_xy[yy, xx, 0, m] * ti + phase_xy[yy, xx, 1, m] * tr)
             vr = gr * pr - gi * pi

@@ -68,6 +68,9 @@ class EncodingConfig:
         xy_scale_px: spatial normalisation, px (coordinates enter as ``x / xy_scale_px``).
         t_scale_us: temporal normalisation, microseconds (times enter as ``t / t_scale_us``).
         seed: seed of ``numpy.random.default_rng`` that draws the random matrix.
+        polarity: add the polarity (+1/-1) as a fourth coordinate (a fourth row of ``A``), so
+            that the encoding tells same-polarity from opposite-polarity neighbours (VecKM
+            itself ignores polarity). Costs nothing at run time.
 
     Defaults: chosen on simulated scenes (evimo_like, eed_like, ego_only; 20 ms slices, cell
     targets, same short training each): a 7x7 window with alpha 2 and 10 ms time scale gave a
@@ -82,6 +85,7 @@ class EncodingConfig:
     xy_scale_px: float = 3.0
     t_scale_us: float = 10000.0
     seed: int = 0
+    polarity: bool = False
 
     def __post_init__(self) -> None:
         for name in ("d", "window_px", "seed"):
@@ -94,6 +98,14 @@ class EncodingConfig:
             if not np.isfinite(v) or v <= 0:
                 raise ConfigError(f"EncodingConfig: field '{name}' must be a positive number, got {v!r}")
             object.__setattr__(self, name, v)
+        if not isinstance(self.polarity, (bool, np.bool_)):
+            raise ConfigError(f"EncodingConfig: field 'polarity' must be true or false, got {self.polarity!r}")
+        object.__setattr__(self, "polarity", bool(self.polarity))
+
+    @property
+    def n_coords(self) -> int:
+        """Rows of the random matrix: x, y, t (and polarity)."""
+        return 4 if self.polarity else 3
 
     @property
     def n_features(self) -> int:
@@ -120,9 +132,10 @@ class EncodingConfig:
 
 
 def encoding_matrix(cfg: EncodingConfig) -> np.ndarray:
-    """The fixed random matrix ``A``: float64 ``(3, d)``, rows (x, y, t), entries N(0,1)*alpha."""
+    """The fixed random matrix ``A``: float64 ``(3, d)``, rows (x, y, t), entries N(0,1)*alpha;
+    ``(4, d)`` with a polarity row when ``cfg.polarity`` (the first three rows are the same)."""
     rng = np.random.default_rng(cfg.seed)
-    return rng.standard_normal((3, cfg.d)) * cfg.alpha
+    return rng.standard_normal((cfg.n_coords, cfg.d)) * cfg.alpha
 
 
 @lru_cache(maxsize=8)
@@ -169,8 +182,8 @@ def _check_calibration(calibration: "Calibration", sensor_size: tuple[int, int])
 
 def _check_matrix(matrix: np.ndarray, cfg: EncodingConfig) -> np.ndarray:
     matrix = np.asarray(matrix, dtype=np.float64)
-    if matrix.shape != (3, cfg.d):
-        raise ConfigError(f"encoding matrix has shape {matrix.shape}, expected (3, {cfg.d})")
+    if matrix.shape != (cfg.n_coords, cfg.d):
+        raise ConfigError(f"encoding matrix has shape {matrix.shape}, expected ({cfg.n_coords}, {cfg.d})")
     return matrix
 
 
@@ -179,14 +192,20 @@ def time_phase_tables(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Exact factorisation of ``exp(i a_t dt / t_scale_us)`` for integer ``0 <= dt <= span_us``.
 
-    Returns complex64 tables ``hi`` ``(span_us >> 10) + 1, d)`` and ``lo`` ``(1024, d)`` with
-    ``exp(i a_t dt / t_scale_us) = hi[dt >> 10] * lo[dt & 1023]``.
+    Returns complex64 tables ``hi`` ``(span_us >> 10) + 1, d)`` and ``lo`` ``(P, 1024, d)`` with
+    ``exp(i a_t dt / t_scale_us) = hi[dt >> 10] * lo[0, dt & 1023]``. With ``cfg.polarity``,
+    ``P = 2`` and ``lo[q]`` also carries the polarity phase ``exp(i a_p p)`` with
+    ``p = -1`` for ``q = 0`` and ``+1`` for ``q = 1``; otherwise ``P = 1``.
     """
     A = encoding_matrix(cfg) if matrix is None else _check_matrix(matrix, cfg)
     a_t = A[2] / cfg.t_scale_us
     n_hi = (int(span_us) >> _LO_BITS) + 1
     hi = np.exp(1j * np.outer(np.arange(n_hi, dtype=np.float64) * _LO_SIZE, a_t))
     lo = np.exp(1j * np.outer(np.arange(_LO_SIZE, dtype=np.float64), a_t))
+    if cfg.polarity:
+        lo = np.stack([lo * np.exp(-1j * A[3]), lo * np.exp(1j * A[3])])
+    else:
+        lo = lo[None]
     return hi.astype(np.complex64), lo.astype(np.complex64)
 
 
@@ -220,7 +239,7 @@ def encode_targets(
         cfg: encoding constants.
         calibration: optional; positions then are undistorted pixel coordinates (module doc).
         phase_xy: optional precomputed :func:`spatial_phase` ``(H, W, d)`` (saves its cost).
-        matrix: optional ``(3, d)`` random matrix overriding :func:`encoding_matrix` (an ONNX
+        matrix: optional ``(3 or 4, d)`` random matrix overriding :func:`encoding_matrix` (an ONNX
             model stores its own, so it does not depend on numpy's generator staying the same).
 
     Returns:
@@ -247,7 +266,8 @@ def encode_targets(
     hi, lo = _planar_time_tables(cfg, int(dt.max()), matrix)
     field, count, row_used, cum, ccum = _workspace(height, width, cfg.d)
     nblk = numba.get_num_threads()
-    _kernels.scatter(x, y, dt, hi, lo, _LO_BITS, field, count, row_used, nblk)
+    pol = (events["p"] > 0).astype(np.int8) if cfg.polarity else np.zeros(len(events), np.int8)
+    _kernels.scatter(x, y, dt, pol, hi, lo, _LO_BITS, field, count, row_used, nblk)
     pxy = _planar_phase(phase_xy)
     _kernels.box_pass(field, count, row_used, pxy, cfg.window_px, cum, ccum, nblk)
     # Visiting targets in row order walks the box-sum grid forward instead of at random.
@@ -255,7 +275,7 @@ def encode_targets(
     order = np.argsort(ty, kind="stable")
     st = targets[order]
     return _kernels.target_features(
-        cum, ccum, cfg.window_px, x[st].astype(np.int64), ty[order].astype(np.int64), dt[st], order,
+        cum, ccum, cfg.window_px, x[st].astype(np.int64), ty[order].astype(np.int64), dt[st], pol[st], order,
         pxy, hi, lo, _LO_BITS,
     )
 
@@ -339,7 +359,10 @@ def encode_targets_reference(
         px, py = xu[y, x].astype(np.float64), yu[y, x].astype(np.float64)
     else:
         px, py = x.astype(np.float64), y.astype(np.float64)
-    P = np.stack([px / cfg.xy_scale_px, py / cfg.xy_scale_px, t / cfg.t_scale_us], axis=1)
+    cols = [px / cfg.xy_scale_px, py / cfg.xy_scale_px, t / cfg.t_scale_us]
+    if cfg.polarity:
+        cols.append(np.where(events["p"] > 0, 1.0, -1.0))
+    P = np.stack(cols, axis=1)
     out = np.zeros((len(targets), cfg.n_features), np.float64)
     for r, i in enumerate(targets):
         nb = (np.abs(x - x[i]) <= k) & (np.abs(y - y[i]) <= k)

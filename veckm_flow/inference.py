@@ -6,7 +6,8 @@ The ONNX file (written by :func:`evseg.export.export_onnx`) holds the head, one 
 
 - ``evseg.format``: ``"evseg-normal-flow/1"``
 - ``evseg.encoding``: JSON of :class:`~evseg.veckm_flow.EncodingConfig`
-- ``evseg.matrix``: JSON ``(3, d)`` list of the random matrix (rows x, y, t)
+- ``evseg.matrix``: JSON ``(3, d)`` list of the random matrix (rows x, y, t; a fourth row,
+  polarity, when the encoding uses it)
 - ``evseg.flow_unit_px_s``: px/s of one head output unit (a check, derived from the encoding)
 - ``evseg.head``: JSON of the head's constructor arguments (informative)
 """
@@ -39,7 +40,7 @@ DEFAULT_MODEL = Path(__file__).resolve().parent / "weights" / "normal_flow.onnx"
 
 
 def read_model_metadata(path: str | Path) -> tuple[EncodingConfig, np.ndarray, dict]:
-    """``(cfg, matrix (3, d) float64, all metadata)`` of an exported model (ModelError if not one)."""
+    """``(cfg, matrix (3 or 4, d) float64, all metadata)`` of an exported model (ModelError if not one)."""
     path = Path(path)
     meta = dict(_session(path, threads=1).get_modelmeta().custom_metadata_map)
     cfg, matrix = _parse_metadata(path, meta)
@@ -58,8 +59,8 @@ def _parse_metadata(path: Path, meta: dict) -> tuple[EncodingConfig, np.ndarray]
         unit = float(meta["evseg.flow_unit_px_s"])
     except (ValueError, TypeError) as exc:
         raise ModelError(f"{path}: metadata field is malformed: {exc}") from None
-    if matrix.shape != (3, cfg.d):
-        raise ModelError(f"{path}: metadata 'evseg.matrix' has shape {matrix.shape}, expected (3, {cfg.d})")
+    if matrix.shape != (cfg.n_coords, cfg.d):
+        raise ModelError(f"{path}: metadata 'evseg.matrix' has shape {matrix.shape}, expected ({cfg.n_coords}, {cfg.d})")
     if not np.isclose(unit, cfg.flow_unit_px_s, rtol=1e-9):
         raise ModelError(f"{path}: metadata 'evseg.flow_unit_px_s' = {unit} disagrees with the encoding ({cfg.flow_unit_px_s})")
     return cfg, matrix

@@ -52,7 +52,7 @@ def test_time_tables_are_exact_factorisation():
     dt = np.array([0, 1, 1023, 1024, 37_777, 50_000])
     a_t = encoding_matrix(cfg)[2] / cfg.t_scale_us
     expect = np.exp(1j * np.outer(dt, a_t))
-    np.testing.assert_allclose(hi[dt >> 10] * lo[dt & 1023], expect, atol=1e-6)  # complex64 rounding
+    np.testing.assert_allclose(hi[dt >> 10] * lo[0, dt & 1023], expect, atol=1e-6)  # complex64 rounding
 
 
 def test_does_not_mutate_input_and_is_deterministic(make_slice):
@@ -112,3 +112,15 @@ def test_undistorted_to_sensor_flow_identity_and_scaling():
     nx, ny = undistorted_to_sensor_flow(np.array([100.0, -30.0]), np.array([0.0, 40.0]), np.array([5, 20]), np.array([5, 10]), cal)
     np.testing.assert_allclose(nx, [100.0, -30.0], rtol=1e-4)  # float32 undistortion map
     np.testing.assert_allclose(ny, [0.0, 40.0], atol=1e-3)
+
+
+def test_polarity_coordinate_matches_reference_and_matters(make_slice):
+    cfg = EncodingConfig(d=8, window_px=3, polarity=True)
+    ev = make_slice(2000, (40, 30), seed=6)
+    targets = np.arange(0, 2000, 13)
+    fast = encode_targets(ev, targets, (40, 30), cfg)
+    np.testing.assert_allclose(fast, encode_targets_reference(ev, targets, (40, 30), cfg), atol=ATOL)
+    plain = encode_targets(ev, targets, (40, 30), EncodingConfig(d=8, window_px=3))
+    assert not np.allclose(fast, plain, atol=1e-2)
+    # The polarity row is appended: x, y, t rows are those of the plain encoding.
+    np.testing.assert_array_equal(encoding_matrix(cfg)[:3], encoding_matrix(EncodingConfig(d=8, window_px=3)))
