@@ -100,8 +100,6 @@ class SegmentationConfig:
     """IRLS weights of the fitter: 'none', 'huber', 'cauchy' or 'truncated' (at tau)."""
     robust_scale: float = 1.0
     """Scale of the robust loss in units of sigma (the Huber / Cauchy constant)."""
-    min_label_nodes: int = 4
-    """Labels with fewer nodes after a labeling step are dropped (too few to fit 4 params)."""
 
     # --- initialization ----------------------------------------------------------------
     n_sampled: int = 12

@@ -10,15 +10,17 @@ Order of the steps (our choice where the paper is silent):
 2. Candidates: motion prediction from the previous window's objects (and its background
    model), then fast sampling (``n_sampled``, or ``n_sampled_with_prediction`` when prediction
    gave a candidate).
-3. Round 0: every node takes its cheapest candidate (no smoothness) and every candidate is
-   refitted by LM to those nodes. Sampled candidates are pure translations equal to one normal
-   flow; one robust refit turns each into the motion of the nodes it best explains, which keeps
-   the label cost from deleting an object's only candidate before it was ever fitted.
+3. Round 0: every sampled candidate is fitted by LM to its voters (the nodes whose 1-ring
+   translation fell within two sampling bins of it), then every node takes its cheapest
+   candidate (no smoothness). A sampled candidate is a pure translation; its voters are the
+   nodes moving like it - for a small, fast-spinning object, the object itself - so one robust
+   fit turns it into that object's full motion before the label cost can delete it.
    Round 0b: the nodes that no fitted candidate explains (data cost at the truncation) are
    sampled again (``n_resampled`` candidates from their translations), and round 0 is repeated
    with the extra candidates: a small object whose flow vectors drown among the background's
    (strong divergence near the image border) gets its candidate there.
-4. Rounds 1..max_rounds: alpha-expansion from the current labeling, drop empty labels, LM refit;
+4. Rounds 1..max_rounds: alpha-expansion from the current labeling, drop empty labels, LM refit,
+   merge near-duplicate models (only when that lowers the energy);
    a refitted model replaces the old one only if it lowers its label's data energy, so the
    energy never increases. Stop when the labeling is unchanged and no model's flow moved more
    than ``model_tol_px_s``.
@@ -205,13 +207,16 @@ def segment_normal_flow(
         # The previous background model is a free, usually excellent candidate.
         predicted = np.concatenate([previous.models[:1], predicted])
     n_sample = cfg.n_sampled_with_prediction if n_object_candidates else cfg.n_sampled
-    vx, vy = graph.nx, graph.ny
-    tx = ty = ok = None
+    # Each node's vote for fast sampling: its 1-ring translation ('local', well-conditioned
+    # rings only) or its normal flow ('normal').
+    vote_x, vote_y, voting = graph.nx, graph.ny, np.ones(m, dtype=bool)
     if cfg.sampling_flow == "local" and m:
-        tx, ty, ok = local_translations(graph.nx, graph.ny, graph.edges, sigma)
+        vote_x, vote_y, ring_ok = local_translations(graph.nx, graph.ny, graph.edges, sigma)
         # Every node votes when no 1-ring is well conditioned (e.g. one straight edge).
-        vx, vy = (tx[ok], ty[ok]) if ok.any() else (tx, ty)
-    sampled = fast_sampling(vx, vy, n_sample, cfg.sampling_bin * sigma, cfg.min_candidate_separation * sigma)
+        voting = ring_ok if ring_ok.any() else voting
+    bin_px_s = cfg.sampling_bin * sigma
+    sampled = fast_sampling(vote_x[voting], vote_y[voting], n_sample, bin_px_s,
+                            cfg.min_candidate_separation * sigma)
     models = np.concatenate([predicted, sampled]) if m else np.empty((0, 4))
     n_candidates = len(models)
     timings["initialization"] = (time.perf_counter() - tic) * 1e3
@@ -225,30 +230,28 @@ def segment_normal_flow(
             return data_costs(mod, xr, yr, graph.nx, graph.ny, sigma, cfg.truncation, graph.confidence)
 
         ar = np.arange(m)
-        # Round 0: greedy labeling, one refit of every candidate (see module docstring).
+        # Round 0 (see module docstring): fit each sampled candidate to the nodes that voted
+        # for it, then label greedily.
         data = costs(models)
+        fit_on = _voters(vote_x, vote_y, voting, sampled[:, 2:], bin_px_s, len(predicted))
+        models, data = _refit(models, data, fit_on, xr, yr, graph, lm_kw, costs, ar, always=True)
         labels = np.argmin(data, axis=1)
-        models, data = _refit(models, data, labels, xr, yr, graph, lm_kw, costs, ar)
         models, data, labels = _merge_duplicates(models, data, labels, cfg.merge_tol * sigma, radius,
                                                  graph.edges, edge_w, cfg.lambda_m)
         if cfg.n_resampled > 0:
             # Round 0b: sample again among the nodes no fitted model explains (data cost at the
             # truncation): a small object hidden among the background's flow variations.
-            best = data[ar, labels] / np.maximum(graph.confidence, 1e-12)
-            lost = best >= 0.99 * cfg.truncation ** 2
-            if vx is not graph.nx:
-                lost_ok = lost & ok
-                rx, ry = tx[lost_ok], ty[lost_ok]
-            else:
-                rx, ry = graph.nx[lost], graph.ny[lost]
-            if len(rx) >= cfg.min_object_nodes:
-                extra = fast_sampling(rx, ry, cfg.n_resampled, cfg.sampling_bin * sigma,
+            lost = voting & (data[ar, labels] >= 0.99 * cfg.truncation ** 2 * graph.confidence)
+            if lost.sum() >= cfg.min_object_nodes:
+                extra = fast_sampling(vote_x[lost], vote_y[lost], cfg.n_resampled, bin_px_s,
                                       cfg.min_candidate_separation * sigma)
                 if len(extra):
+                    fit_on = _voters(vote_x, vote_y, lost, extra[:, 2:], bin_px_s, len(models))
                     models = np.concatenate([models, extra])
                     data = costs(models)
+                    models, data = _refit(models, data, fit_on, xr, yr, graph, lm_kw, costs, ar,
+                                          always=True)
                     labels = np.argmin(data, axis=1)
-                    models, data = _refit(models, data, labels, xr, yr, graph, lm_kw, costs, ar)
                     models, data, labels = _merge_duplicates(
                         models, data, labels, cfg.merge_tol * sigma, radius, graph.edges, edge_w,
                         cfg.lambda_m)
@@ -322,11 +325,40 @@ def segment_normal_flow(
     )
 
 
-def _refit(models, data, labels, xr, yr, graph, lm_kw, costs, ar):
-    """LM-refit every label's model; keep a new model only if it lowers its label's data energy."""
+def _voters(vote_x, vote_y, voting, cand_t, bin_px_s, offset):
+    """Round-0 fitting labels: each voting node joins the nearest sampled candidate whose
+    translation lies within two sampling bins of its vote (label offset + j), else -1.
+
+    The voters of a candidate are the nodes whose 1-ring moves like it - for a small object,
+    the object itself - so its first fit sees the object, not every node it happens to fit.
+    """
+    out = np.full(len(vote_x), -1, dtype=np.int64)
+    if len(cand_t) == 0:
+        return out
+    d2 = (vote_x[:, None] - cand_t[:, 0]) ** 2 + (vote_y[:, None] - cand_t[:, 1]) ** 2
+    j = np.argmin(d2, axis=1)
+    near = voting & (d2[np.arange(len(j)), j] <= 4.0 * bin_px_s * bin_px_s)
+    out[near] = j[near] + offset
+    return out
+
+
+def _refit(models, data, labels, xr, yr, graph, lm_kw, costs, ar, always=False):
+    """LM-refit every label's model to its nodes (label -1: left out).
+
+    A new model replaces the old one only if it lowers its label's data energy, so that the
+    alternation never raises the energy; ``always`` (round 0, before any energy is defined)
+    takes every label's fit that saw nodes.
+    """
     new = fit_lm(xr, yr, graph.nx, graph.ny, labels, models, weights=graph.confidence, **lm_kw)
     new_data = costs(new)
     n = len(models)
+    if always:
+        seen = np.bincount(labels[labels >= 0], minlength=n) > 0
+        models = models.copy()
+        models[seen] = new[seen]
+        data = data.copy()
+        data[:, seen] = new_data[:, seen]
+        return models, data
     e_old = np.bincount(labels, weights=data[ar, labels], minlength=n)
     e_new = np.bincount(labels, weights=new_data[ar, labels], minlength=n)
     better = e_new < e_old - 1e-12 * np.maximum(e_old, 1.0)

@@ -1,0 +1,72 @@
+"""Fast sampling, 1-ring translations and motion prediction."""
+
+import numpy as np
+
+from evseg.segmentation.initialization import (
+    fast_sampling, local_translations, motion_prediction, predict_boxes,
+)
+from evseg.segmentation.motion_model import normal_flow_of
+from evseg.segmentation.preprocessing import delaunay_edges
+
+
+def test_local_translations_recover_a_pure_translation_exactly():
+    rng = np.random.default_rng(0)
+    x, y = rng.uniform(0, 100, 300), rng.uniform(0, 100, 300)
+    ang = rng.uniform(0, 2 * np.pi, 300)
+    model = np.array([[1.0, 0.0, 120.0, -45.0]])
+    nx, ny = normal_flow_of(model, np.zeros(300, dtype=int), x, y, np.cos(ang), np.sin(ang))
+    keep = np.hypot(nx, ny) > 1.0
+    x, y, nx, ny = x[keep], y[keep], nx[keep], ny[keep]
+    tx, ty, ok = local_translations(nx, ny, delaunay_edges(x, y), scale_px_s=5.0)
+    assert ok.mean() > 0.9
+    # noise-free translation: every well-conditioned ring solves it exactly
+    np.testing.assert_allclose(tx[ok], 120.0, atol=1e-6)
+    np.testing.assert_allclose(ty[ok], -45.0, atol=1e-6)
+
+
+def test_parallel_ring_does_not_vote():
+    x = np.array([0.0, 1.0, 0.0, 1.0])
+    y = np.array([0.0, 0.0, 1.0, 1.0])
+    tx, ty, ok = local_translations(np.full(4, 50.0), np.zeros(4), delaunay_edges(x, y))
+    assert not ok.any()
+
+
+def test_fast_sampling_frequent_and_far_candidates():
+    rng = np.random.default_rng(1)
+    bg = rng.normal([30.0, 10.0], 3.0, (900, 2))
+    obj = rng.normal([-400.0, 150.0], 3.0, (12, 2))  # 1.3 % of the votes, far away
+    scatter = rng.uniform(-100, 100, (60, 2))  # lone outliers
+    v = np.concatenate([bg, obj, scatter])
+    c = fast_sampling(v[:, 0], v[:, 1], n=6, bin_px_s=20.0, min_separation_px_s=40.0)
+    assert c.shape[1] == 4 and len(c) <= 6
+    np.testing.assert_allclose(c[:, :2], np.tile([1.0, 0.0], (len(c), 1)))
+    assert np.hypot(*(c[0, 2:] - [30.0, 10.0])) < 15.0  # most frequent first
+    assert np.min(np.hypot(c[:, 2] + 400.0, c[:, 3] - 150.0)) < 15.0  # the small far object
+    d = np.hypot(*(c[:, None, 2:] - c[None, :, 2:]).transpose(2, 0, 1))
+    assert np.all(d[~np.eye(len(c), dtype=bool)] >= 40.0)  # clearly different
+    # deterministic
+    np.testing.assert_array_equal(c, fast_sampling(v[:, 0], v[:, 1], 6, 20.0, 40.0))
+
+
+def test_predict_boxes_moves_by_model_flow():
+    boxes = np.array([[10.0, 20.0, 30.0, 40.0]])
+    models = np.array([[1.0, 0.0, 100.0, -50.0]])  # pure translation
+    got = predict_boxes(boxes, models, (0.0, 0.0), dt_s=0.01, margin_px=2.0)
+    np.testing.assert_allclose(got, [[10 + 1 - 2, 20 - 0.5 - 2, 30 + 1 + 2, 40 - 0.5 + 2]])
+
+
+def test_motion_prediction_fits_the_object_in_its_moved_box():
+    rng = np.random.default_rng(2)
+    true = np.array([[1.1, 0.1, 200.0, 80.0]])
+    # object nodes around (60, 50) at time t; the previous box was 2 px up-left of it
+    x, y = rng.uniform(50, 70, 150), rng.uniform(40, 60, 150)
+    ang = rng.uniform(0, 2 * np.pi, 150)
+    nx, ny = normal_flow_of(true, np.zeros(150, dtype=int), x, y, np.cos(ang), np.sin(ang))
+    prev_box = np.array([[48.0, 38.0, 68.0, 58.0]])
+    prev_model = np.array([[1.0, 0.0, 180.0, 60.0]])
+    cand = motion_prediction(x, y, nx, ny, prev_box, prev_model, (0.0, 0.0), dt_s=0.01,
+                             margin_px=4.0, min_nodes=8, loss="none", iterations=20)
+    np.testing.assert_allclose(cand, true, rtol=1e-5, atol=1e-3)
+    none = motion_prediction(x, y, nx, ny, np.array([[200.0, 200.0, 210.0, 210.0]]), prev_model,
+                             (0.0, 0.0), 0.01, 0.0, 8)
+    assert none.shape == (0, 4)
