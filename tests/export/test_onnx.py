@@ -1,3 +1,5 @@
+import json
+
 import numpy as np
 import pytest
 import torch
@@ -34,7 +36,7 @@ def test_onnx_file_has_pinned_opset_dynamic_targets_and_metadata(exported):
     assert dims[0].dim_param and dims[1].dim_value == cfg.n_features
     meta = {p.key: p.value for p in m.metadata_props}
     assert meta["evseg.format"] == "evseg-normal-flow/1" and meta["evseg.note"] == "test"
-    np.testing.assert_array_equal(np.array(eval(meta["evseg.matrix"])).shape, (3, 16))
+    assert np.array(json.loads(meta["evseg.matrix"])).shape == (4, 16)  # x, y, t, polarity
 
 
 def test_parity_on_synthetic_events(exported):

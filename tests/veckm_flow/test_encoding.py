@@ -47,7 +47,7 @@ def test_encoding_is_translation_invariant_in_space_and_time(make_slice):
 
 
 def test_time_tables_are_exact_factorisation():
-    cfg = EncodingConfig(d=4)
+    cfg = EncodingConfig(d=4, polarity=False)
     hi, lo = time_phase_tables(cfg, 50_000)
     dt = np.array([0, 1, 1023, 1024, 37_777, 50_000])
     a_t = encoding_matrix(cfg)[2] / cfg.t_scale_us
@@ -70,7 +70,7 @@ def test_matrix_is_seeded():
     b = encoding_matrix(EncodingConfig(d=8, seed=0, alpha=2.0))
     c = encoding_matrix(EncodingConfig(d=8, seed=1, alpha=2.0))
     np.testing.assert_array_equal(a, b)
-    assert a.shape == (3, 8) and not np.allclose(a, c)
+    assert a.shape == (4, 8) and not np.allclose(a, c)
 
 
 def test_config_validation_and_roundtrip():
@@ -120,7 +120,7 @@ def test_polarity_coordinate_matches_reference_and_matters(make_slice):
     targets = np.arange(0, 2000, 13)
     fast = encode_targets(ev, targets, (40, 30), cfg)
     np.testing.assert_allclose(fast, encode_targets_reference(ev, targets, (40, 30), cfg), atol=ATOL)
-    plain = encode_targets(ev, targets, (40, 30), EncodingConfig(d=8, window_px=3))
+    plain = encode_targets(ev, targets, (40, 30), EncodingConfig(d=8, window_px=3, polarity=False))
     assert not np.allclose(fast, plain, atol=1e-2)
     # The polarity row is appended: x, y, t rows are those of the plain encoding.
-    np.testing.assert_array_equal(encoding_matrix(cfg)[:3], encoding_matrix(EncodingConfig(d=8, window_px=3)))
+    np.testing.assert_array_equal(encoding_matrix(cfg)[:3], encoding_matrix(EncodingConfig(d=8, window_px=3, polarity=False)))

@@ -48,7 +48,7 @@ def test_metadata_rebuilds_encoder(random_onnx):
     est = OnnxNormalFlow(path)
     assert est.cfg == cfg
     assert json.loads(est.metadata["evseg.encoding"]) == cfg.to_dict()
-    assert est.matrix.shape == (3, cfg.d)
+    assert est.matrix.shape == (cfg.n_coords, cfg.d)
 
 
 def test_default_targets_are_all_events_and_deterministic(random_onnx, make_slice):
