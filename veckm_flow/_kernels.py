@@ -22,21 +22,21 @@ from numba import njit, prange
 
 
 @njit(cache=True, parallel=True, fastmath=True)
-def scatter(x, y, dt, pol, hi, lo, lo_bits, field, count, row_used, nblk):  # pragma: no cover
+def scatter(x, y, dt, pol, hi, lo, lo_bits, field, count, row_used, bands):  # pragma: no cover
     """Per-pixel sum of the time (and polarity) phases ``hi[dt >> b] * lo[pol, dt & mask]``.
 
     x, y: uint16 (N,) px; dt: int64 (N,) us; pol: int8 (N,) index into ``lo`` (0 when the
     encoding ignores polarity); hi (., 2, d), lo (P, 1024, 2, d): float32 planar tables;
     field: (H, W, 2, d) float32 out; count (H, W) int32 must be zero on entry; row_used (H,)
-    bool is set. Threads own bands of rows, so no two threads write the same pixel.
+    bool is set. Thread c owns rows ``bands[c]:bands[c + 1]`` (chosen to hold similar numbers
+    of events), so no two threads write the same pixel.
     """
-    H = field.shape[0]
     d = field.shape[3]
     n = x.shape[0]
     mask = (1 << lo_bits) - 1
-    for c in prange(nblk):
-        y0 = c * H // nblk
-        y1 = (c + 1) * H // nblk
+    for c in prange(bands.shape[0] - 1):
+        y0 = bands[c]
+        y1 = bands[c + 1]
         for j in range(n):
             yy = y[j]
             if yy < y0 or yy >= y1:

@@ -268,7 +268,7 @@ def encode_targets(
     field, count, row_used, cum, ccum = _workspace(height, width, cfg.d)
     nblk = numba.get_num_threads()
     pol = (events["p"] > 0).astype(np.int8) if cfg.polarity else np.zeros(len(events), np.int8)
-    _kernels.scatter(x, y, dt, pol, hi, lo, _LO_BITS, field, count, row_used, nblk)
+    _kernels.scatter(x, y, dt, pol, hi, lo, _LO_BITS, field, count, row_used, _row_bands(y, height, nblk))
     pxy = _planar_phase(phase_xy)
     _kernels.box_pass(field, count, row_used, pxy, cfg.window_px, cum, ccum, nblk)
     # Visiting targets in row order walks the box-sum grid forward instead of at random.
@@ -279,6 +279,13 @@ def encode_targets(
         cum, ccum, cfg.window_px, x[st].astype(np.int64), ty[order].astype(np.int64), dt[st], pol[st], order,
         pxy, hi, lo, _LO_BITS,
     )
+
+
+def _row_bands(y: np.ndarray, height: int, n_bands: int) -> np.ndarray:
+    """Row boundaries (n_bands + 1,) int64 splitting the events into bands of similar counts."""
+    cum = np.cumsum(np.bincount(y, minlength=height))
+    cuts = np.searchsorted(cum, np.arange(1, n_bands) * cum[-1] / n_bands, side="left") + 1
+    return np.concatenate([[0], np.minimum(cuts, height), [height]]).astype(np.int64)
 
 
 _WORKSPACE: dict = {}
