@@ -107,11 +107,17 @@ class SegmentationConfig:
     n_sampled_with_prediction: int = 6
     """Fast sampling: candidates when motion prediction supplied at least one candidate."""
     n_resampled: int = 4
-    """Round 0b: candidates sampled again among the nodes no fitted candidate explains (0 = off)."""
+    """Round 0b: at most this many extra candidates, fitted to the largest connected regions of
+    nodes no fitted candidate explains (0 = off)."""
     sampling_flow: str = "local"
     """Translation vector of a node for fast sampling: 'local' = least-squares translation of
     its Delaunay 1-ring (resolves the aperture problem; see initialization.py), 'normal' = its
     normal flow as such (the paper's wording)."""
+    ring_consistency: bool = True
+    """Down-weigh flows that contradict a Delaunay 1-ring which otherwise moves as one (mean
+    Cauchy weight of the neighbours >= 0.5): confidence times 1 / (1 + (r / (truncation
+    sigma))^2), r = the flow's residual under its ring's translation (likely outliers; needs
+    sampling_flow 'local')."""
     sampling_bin: float = 4.0
     """Fast sampling counts translation vectors in square bins of sampling_bin * sigma (px/s)."""
     min_candidate_separation: float = 4.0
@@ -200,8 +206,10 @@ def _coerce(key: str, value, default, source: str):
         kind = float
     else:
         kind = type(default)
-    if isinstance(value, bool) or (kind is not bool and isinstance(value, bool)):
+    if kind is not bool and isinstance(value, bool):
         raise ConfigError(f"{source}: field '{key}' must be {kind.__name__}, got {value!r}")
+    if kind is bool and isinstance(value, bool):
+        return value
     if kind is float and isinstance(value, (int, float)):
         return float(value)
     if kind is int and isinstance(value, int):

@@ -82,6 +82,25 @@ def local_translations(
     return tx, ty, ok
 
 
+def ring_agreement(
+    nx: np.ndarray, ny: np.ndarray, edges: np.ndarray, tx: np.ndarray, ty: np.ndarray, scale_px_s: float
+) -> np.ndarray:
+    """Mean Cauchy weight of each node's neighbours under the node's ring translation, (M,).
+
+    Near 1 when the ring moves as one (inside the background or an object), low on object
+    boundaries, at fast-rotating small objects and where the ring itself is noisy.
+    """
+    nx = np.asarray(nx, dtype=np.float64)
+    ny = np.asarray(ny, dtype=np.float64)
+    m = len(nx)
+    centre = np.concatenate([edges[:, 0], edges[:, 1]])
+    member = np.concatenate([edges[:, 1], edges[:, 0]])
+    norm = np.hypot(nx, ny)
+    r = ((nx[member] * tx[centre] + ny[member] * ty[centre]) / norm[member] - norm[member]) / scale_px_s
+    total = np.bincount(centre, weights=1.0 / (1.0 + r * r), minlength=m)
+    return total / np.maximum(np.bincount(centre, minlength=m), 1)
+
+
 def fast_sampling(
     nx: np.ndarray,
     ny: np.ndarray,

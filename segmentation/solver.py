@@ -15,10 +15,12 @@ Order of the steps (our choice where the paper is silent):
    candidate (no smoothness). A sampled candidate is a pure translation; its voters are the
    nodes moving like it - for a small, fast-spinning object, the object itself - so one robust
    fit turns it into that object's full motion before the label cost can delete it.
-   Round 0b: the nodes that no fitted candidate explains (data cost at the truncation) are
-   sampled again (``n_resampled`` candidates from their translations), and round 0 is repeated
-   with the extra candidates: a small object whose flow vectors drown among the background's
-   (strong divergence near the image border) gets its candidate there.
+   Round 0b: the nodes that no fitted candidate explains (data cost at the truncation) that
+   form connected regions of the graph (at least ``min_object_nodes``; the ``n_resampled``
+   largest) each give one more candidate, fitted to the region like a motion-prediction box
+   (linear solution, then LM): a small object whose translations drown among the background's
+   variations, or whose 1-rings are too mixed to vote (a small spinning ball), is exactly such
+   a region, while scattered outlier flows are not.
 4. Rounds 1..max_rounds: alpha-expansion from the current labeling, drop empty labels, LM refit,
    merge near-duplicate models (only when that lowers the energy);
    a refitted model replaces the old one only if it lowers its label's data energy, so the
@@ -45,8 +47,10 @@ from evseg.errors import EventDataError
 from evseg.segmentation.config import SegmentationConfig
 from evseg.segmentation.energy import data_costs, energy, potts_weights
 from evseg.segmentation.expansion import alpha_expansion
-from evseg.segmentation.fitting import fit_lm
-from evseg.segmentation.initialization import fast_sampling, local_translations, motion_prediction
+from evseg.segmentation.fitting import fit_linear, fit_lm
+from evseg.segmentation.initialization import (
+    fast_sampling, local_translations, motion_prediction, ring_agreement,
+)
 from evseg.segmentation.motion_model import flow_field, model_change_px_s
 from evseg.segmentation.outputs import (
     background_layers, nearest_node_labels, region_box, region_mask, split_objects,
@@ -187,9 +191,26 @@ def segment_normal_flow(
     timings["preprocessing"] = (time.perf_counter() - tic) * 1e3
 
     tic = time.perf_counter()
+    # Each node's vote for fast sampling: its 1-ring translation ('local', well-conditioned
+    # rings only) or its normal flow ('normal').
+    vote_x, vote_y, voting = graph.nx, graph.ny, np.ones(m, dtype=bool)
+    conf = graph.confidence
+    if cfg.sampling_flow == "local" and m:
+        vote_x, vote_y, ring_ok = local_translations(graph.nx, graph.ny, graph.edges, sigma)
+        # Every node votes when no 1-ring is well conditioned (e.g. one straight edge).
+        voting = ring_ok if ring_ok.any() else voting
+        if cfg.ring_consistency:
+            # A flow that contradicts a 1-ring which otherwise moves as one is likely an outlier:
+            # it weighs less in the data term and the fits. Rings that do not agree (object
+            # boundaries, small fast-spinning objects) leave their node's weight alone.
+            norm = np.hypot(graph.nx, graph.ny)
+            r_self = (graph.nx * vote_x + graph.ny * vote_y) / norm - norm
+            agree = ring_agreement(graph.nx, graph.ny, graph.edges, vote_x, vote_y, sigma)
+            factor = 1.0 / (1.0 + (r_self / (cfg.truncation * sigma)) ** 2)
+            conf = conf * np.where(ring_ok & (agree >= 0.5), factor, 1.0)
     lm_kw = dict(loss=cfg.robust_loss, loss_scale_px_s=cfg.robust_scale * sigma,
                  truncation=cfg.truncation / cfg.robust_scale, iterations=cfg.lm_iterations,
-                 damping=cfg.lm_damping)
+                 damping=cfg.lm_damping, weights=conf)
     predicted = np.empty((0, 4))
     n_object_candidates = 0
     if previous is not None and m and previous.n_objects > 0 and previous.origin_px == origin:
@@ -200,20 +221,13 @@ def segment_normal_flow(
                 graph.x, graph.y, graph.nx, graph.ny,
                 np.array([previous.boxes[k] for k in ids], dtype=np.float64),
                 previous.models[ids], origin, dt_s, cfg.prediction_margin_px,
-                cfg.min_prediction_nodes, weights=graph.confidence, loss=cfg.robust_loss,
+                cfg.min_prediction_nodes, weights=conf, loss=cfg.robust_loss,
                 loss_scale_px_s=cfg.robust_scale * sigma, iterations=cfg.lm_iterations)
             n_object_candidates = len(predicted)
     if previous is not None and len(previous.models) and previous.origin_px == origin:
         # The previous background model is a free, usually excellent candidate.
         predicted = np.concatenate([previous.models[:1], predicted])
     n_sample = cfg.n_sampled_with_prediction if n_object_candidates else cfg.n_sampled
-    # Each node's vote for fast sampling: its 1-ring translation ('local', well-conditioned
-    # rings only) or its normal flow ('normal').
-    vote_x, vote_y, voting = graph.nx, graph.ny, np.ones(m, dtype=bool)
-    if cfg.sampling_flow == "local" and m:
-        vote_x, vote_y, ring_ok = local_translations(graph.nx, graph.ny, graph.edges, sigma)
-        # Every node votes when no 1-ring is well conditioned (e.g. one straight edge).
-        voting = ring_ok if ring_ok.any() else voting
     bin_px_s = cfg.sampling_bin * sigma
     sampled = fast_sampling(vote_x[voting], vote_y[voting], n_sample, bin_px_s,
                             cfg.min_candidate_separation * sigma)
@@ -227,7 +241,7 @@ def segment_normal_flow(
     e_final = 0.0
     if m and len(models):
         def costs(mod):
-            return data_costs(mod, xr, yr, graph.nx, graph.ny, sigma, cfg.truncation, graph.confidence)
+            return data_costs(mod, xr, yr, graph.nx, graph.ny, sigma, cfg.truncation, conf)
 
         ar = np.arange(m)
         # Round 0 (see module docstring): fit each sampled candidate to the nodes that voted
@@ -239,23 +253,23 @@ def segment_normal_flow(
         models, data, labels = _merge_duplicates(models, data, labels, cfg.merge_tol * sigma, radius,
                                                  graph.edges, edge_w, cfg.lambda_m)
         if cfg.n_resampled > 0:
-            # Round 0b: sample again among the nodes no fitted model explains (data cost at the
-            # truncation): a small object hidden among the background's flow variations.
-            lost = voting & (data[ar, labels] >= 0.99 * cfg.truncation ** 2 * graph.confidence)
-            if lost.sum() >= cfg.min_object_nodes:
-                extra = fast_sampling(vote_x[lost], vote_y[lost], cfg.n_resampled, bin_px_s,
-                                      cfg.min_candidate_separation * sigma)
-                if len(extra):
-                    fit_on = _voters(vote_x, vote_y, lost, extra[:, 2:], bin_px_s, len(models))
-                    models = np.concatenate([models, extra])
-                    data = costs(models)
-                    models, data = _refit(models, data, fit_on, xr, yr, graph, lm_kw, costs, ar,
-                                          always=True)
-                    labels = np.argmin(data, axis=1)
-                    models, data, labels = _merge_duplicates(
-                        models, data, labels, cfg.merge_tol * sigma, radius, graph.edges, edge_w,
-                        cfg.lambda_m)
-                    n_candidates += len(extra)
+            # Round 0b: regions no fitted model explains (see module docstring).
+            lost = data[ar, labels] >= 0.99 * cfg.truncation ** 2 * conf
+            region = _unexplained_regions(lost, graph.edges, cfg.min_object_nodes, cfg.n_resampled)
+            n_extra = int(region.max()) + 1 if len(region) else 0
+            if n_extra:
+                keep = region >= 0
+                start = fit_linear(xr[keep], yr[keep], graph.nx[keep], graph.ny[keep], region[keep],
+                                   n_extra, weights=conf[keep])
+                extra = fit_lm(xr[keep], yr[keep], graph.nx[keep], graph.ny[keep], region[keep],
+                               start, **{**lm_kw, "weights": conf[keep]})
+                models = np.concatenate([models, extra])
+                data = costs(models)
+                labels = np.argmin(data, axis=1)
+                models, data, labels = _merge_duplicates(
+                    models, data, labels, cfg.merge_tol * sigma, radius, graph.edges, edge_w,
+                    cfg.lambda_m)
+                n_candidates += n_extra
         for n_rounds in range(1, cfg.max_rounds + 1):
             h = np.full(len(models), cfg.lambda_m)
             res = alpha_expansion(labels, data, graph.edges, edge_w, h, cfg.expansion_cycles)
@@ -325,6 +339,31 @@ def segment_normal_flow(
     )
 
 
+def _unexplained_regions(lost, edges, min_nodes, max_regions):
+    """Connected regions (graph edges between two unexplained nodes) of unexplained nodes.
+
+    Returns (M,) region ids 0..R-1 for the ``max_regions`` largest regions of at least
+    ``min_nodes`` nodes, -1 elsewhere.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    m = len(lost)
+    out = np.full(m, -1, dtype=np.int64)
+    if lost.sum() < min_nodes:
+        return out
+    e = edges[lost[edges[:, 0]] & lost[edges[:, 1]]]
+    _, comp = connected_components(coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(m, m)),
+                                   directed=False)
+    sizes = np.bincount(comp[lost], minlength=comp.max() + 1)
+    big = np.flatnonzero(sizes >= min_nodes)
+    big = big[np.argsort(-sizes[big], kind="stable")][:max_regions]
+    rank = np.full(comp.max() + 1, -1, dtype=np.int64)
+    rank[big] = np.arange(len(big))
+    out[lost] = rank[comp[lost]]
+    return out
+
+
 def _voters(vote_x, vote_y, voting, cand_t, bin_px_s, offset):
     """Round-0 fitting labels: each voting node joins the nearest sampled candidate whose
     translation lies within two sampling bins of its vote (label offset + j), else -1.
@@ -349,7 +388,7 @@ def _refit(models, data, labels, xr, yr, graph, lm_kw, costs, ar, always=False):
     alternation never raises the energy; ``always`` (round 0, before any energy is defined)
     takes every label's fit that saw nodes.
     """
-    new = fit_lm(xr, yr, graph.nx, graph.ny, labels, models, weights=graph.confidence, **lm_kw)
+    new = fit_lm(xr, yr, graph.nx, graph.ny, labels, models, **lm_kw)  # weights = confidence
     new_data = costs(new)
     n = len(models)
     if always:
