@@ -63,61 +63,73 @@ def box_pass(field, count, row_used, phase_xy, k, cum, ccum, nblk):  # pragma: n
     (``|dx| <= k``) of ``field * phase_xy``; ``ccum`` the same for ``count``.
 
     The running sums along y only accumulate row-box sums (bounded by the events of a 2k+1
-    pixel wide strip), which keeps float32 rounding small. Threads own blocks of columns; each
-    computes the running sum along x over its block widened by ``k`` on both sides, so blocks
-    never read each other's output. (A variant that keeps only a rolling row and picks up the
-    targets' sums on the way, writing no full grid, measured ~1.5x slower.)
+    pixel wide strip), which keeps float32 rounding small. Threads own blocks of columns and
+    read (never write) the ``k`` columns beyond their block. (A variant that keeps only a
+    rolling row and picks up the targets' sums on the way, writing no full grid, measured
+    ~1.5x slower; a running sum along x instead of the sliding box ~1.2x slower.)
     """
     H, W = count.shape
     d = field.shape[3]
     for c in prange(nblk):
         x0 = c * W // nblk
         x1 = (c + 1) * W // nblk
-        a0 = max(x0 - k, 0)
-        a1 = min(x1 + k, W)
-        buf = np.empty((a1 - a0 + 1, 2, d), np.float32)
-        cbuf = np.empty(a1 - a0 + 1, np.int32)
+        box = np.empty((2, d), np.float32)
         for yy in range(H):
-            if row_used[yy]:
-                cbuf[0] = 0
-                for m in range(d):
-                    buf[0, 0, m] = 0.0
-                    buf[0, 1, m] = 0.0
-                for xx in range(a0, a1):
-                    i = xx - a0
-                    n = count[yy, xx]
-                    cbuf[i + 1] = cbuf[i] + n
-                    if n == 0:
-                        for m in range(d):
-                            buf[i + 1, 0, m] = buf[i, 0, m]
-                            buf[i + 1, 1, m] = buf[i, 1, m]
-                    else:
-                        for m in range(d):
-                            fr = field[yy, xx, 0, m]
-                            fi = field[yy, xx, 1, m]
-                            pr = phase_xy[yy, xx, 0, m]
-                            pi = phase_xy[yy, xx, 1, m]
-                            buf[i + 1, 0, m] = buf[i, 0, m] + fr * pr - fi * pi
-                            buf[i + 1, 1, m] = buf[i, 1, m] + fr * pi + fi * pr
-                for xx in range(x0, x1):
-                    lo_i = max(xx - k, 0) - a0
-                    hi_i = min(xx + k, W - 1) + 1 - a0
-                    if yy == 0:
-                        ccum[yy, xx] = cbuf[hi_i] - cbuf[lo_i]
-                        for m in range(d):
-                            cum[yy, xx, 0, m] = buf[hi_i, 0, m] - buf[lo_i, 0, m]
-                            cum[yy, xx, 1, m] = buf[hi_i, 1, m] - buf[lo_i, 1, m]
-                    else:
-                        ccum[yy, xx] = ccum[yy - 1, xx] + cbuf[hi_i] - cbuf[lo_i]
-                        for m in range(d):
-                            cum[yy, xx, 0, m] = cum[yy - 1, xx, 0, m] + buf[hi_i, 0, m] - buf[lo_i, 0, m]
-                            cum[yy, xx, 1, m] = cum[yy - 1, xx, 1, m] + buf[hi_i, 1, m] - buf[lo_i, 1, m]
-            else:
+            if not row_used[yy]:
                 for xx in range(x0, x1):
                     ccum[yy, xx] = 0 if yy == 0 else ccum[yy - 1, xx]
                     for m in range(d):
                         cum[yy, xx, 0, m] = 0.0 if yy == 0 else cum[yy - 1, xx, 0, m]
                         cum[yy, xx, 1, m] = 0.0 if yy == 0 else cum[yy - 1, xx, 1, m]
+                continue
+            # Sliding box along x: start with the window of column x0 - 1, then per column add
+            # the pixel entering at x + k and remove the one leaving at x - k - 1 (only pixels
+            # with events contribute, so empty pixels cost nothing here).
+            for m in range(d):
+                box[0, m] = 0.0
+                box[1, m] = 0.0
+            cb = 0
+            for u in range(max(x0 - 1 - k, 0), min(x0 - 1 + k, W - 1) + 1):
+                if count[yy, u] > 0:
+                    cb += count[yy, u]
+                    for m in range(d):
+                        fr = field[yy, u, 0, m]
+                        fi = field[yy, u, 1, m]
+                        pr = phase_xy[yy, u, 0, m]
+                        pi = phase_xy[yy, u, 1, m]
+                        box[0, m] += fr * pr - fi * pi
+                        box[1, m] += fr * pi + fi * pr
+            for xx in range(x0, x1):
+                u = xx + k
+                if u < W and count[yy, u] > 0:
+                    cb += count[yy, u]
+                    for m in range(d):
+                        fr = field[yy, u, 0, m]
+                        fi = field[yy, u, 1, m]
+                        pr = phase_xy[yy, u, 0, m]
+                        pi = phase_xy[yy, u, 1, m]
+                        box[0, m] += fr * pr - fi * pi
+                        box[1, m] += fr * pi + fi * pr
+                u = xx - k - 1
+                if u >= 0 and count[yy, u] > 0:
+                    cb -= count[yy, u]
+                    for m in range(d):
+                        fr = field[yy, u, 0, m]
+                        fi = field[yy, u, 1, m]
+                        pr = phase_xy[yy, u, 0, m]
+                        pi = phase_xy[yy, u, 1, m]
+                        box[0, m] -= fr * pr - fi * pi
+                        box[1, m] -= fr * pi + fi * pr
+                if yy == 0:
+                    ccum[yy, xx] = cb
+                    for m in range(d):
+                        cum[yy, xx, 0, m] = box[0, m]
+                        cum[yy, xx, 1, m] = box[1, m]
+                else:
+                    ccum[yy, xx] = ccum[yy - 1, xx] + cb
+                    for m in range(d):
+                        cum[yy, xx, 0, m] = cum[yy - 1, xx, 0, m] + box[0, m]
+                        cum[yy, xx, 1, m] = cum[yy - 1, xx, 1, m] + box[1, m]
 
 
 @njit(cache=True, parallel=True, fastmath=True)
