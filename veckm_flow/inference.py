@@ -89,8 +89,9 @@ class OnnxNormalFlow:
     Args:
         model_path: an exported ``.onnx`` (default: the model shipped in
             ``evseg/veckm_flow/weights/normal_flow.onnx``).
-        threads: onnxruntime intra-op threads (None: onnxruntime's default, all cores). The
-            encoder's numba threads follow ``NUMBA_NUM_THREADS`` / ``numba.set_num_threads``.
+        threads: threads of the network (onnxruntime intra-op) and of the encoder (numba),
+            None: all cores. On a machine shared with other busy processes, 1 can be faster:
+            the encoder's parallel loops wait for their slowest thread.
 
     Call: ``est(events, sensor_size, targets=None, calibration=None) -> NormalFlow``.
     """
@@ -100,7 +101,8 @@ class OnnxNormalFlow:
         if model_path is None and not path.is_file():
             raise ModelError(f"{path}: no shipped default model in this build; pass a model_path (evseg export)")
         self.model_path = path
-        self.session = _session(path, threads)
+        self.threads = None if threads is None else max(1, int(threads))
+        self.session = _session(path, self.threads)
         meta = self.session.get_modelmeta().custom_metadata_map
         self.cfg, self.matrix = _parse_metadata(path, meta)
         self.metadata = dict(meta)
@@ -118,9 +120,17 @@ class OnnxNormalFlow:
 
     def encode(self, events: np.ndarray, sensor_size, targets: np.ndarray, calibration=None) -> np.ndarray:
         """Features float32 ``(T, 2 d + 1)`` of the targets (see :func:`encode_targets`)."""
-        return encode_targets(
-            events, targets, sensor_size, self.cfg, calibration, self._phase(sensor_size, calibration), self.matrix
-        )
+        import numba
+
+        phase = self._phase(sensor_size, calibration)
+        if self.threads is None:
+            return encode_targets(events, targets, sensor_size, self.cfg, calibration, phase, self.matrix)
+        before = numba.get_num_threads()
+        numba.set_num_threads(min(self.threads, numba.config.NUMBA_NUM_THREADS))
+        try:
+            return encode_targets(events, targets, sensor_size, self.cfg, calibration, phase, self.matrix)
+        finally:
+            numba.set_num_threads(before)
 
     def predict(self, feats: np.ndarray) -> np.ndarray:
         """Raw head output float32 ``(T, 3)`` for features ``(T, F)``."""

@@ -37,7 +37,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--window-ms", type=float, default=20.0, help="slice duration (ms); neighbours come from the same slice")
     p.add_argument("--targets", choices=["cell", "all"], default="cell", help="which events get a flow")
     p.add_argument("--cell-px", type=int, default=2, help="cell side (px) for --targets cell")
-    p.add_argument("--threads", type=int, default=None, help="onnxruntime threads (default: all cores)")
+    p.add_argument("--threads", type=int, default=None, help="threads of the encoder and network (default: all cores)")
     p.add_argument("--video", type=Path, default=None, help="also write a colour-wheel flow video (.mp4)")
     p.add_argument("--max-px-s", type=float, default=None,
                    help="flow speed shown at full brightness in the video (default: 95th percentile)")

@@ -82,3 +82,14 @@ def test_missing_or_foreign_model_raises(tmp_path):
     bad.write_bytes(b"not an onnx file")
     with pytest.raises(ModelError, match="cannot load"):
         OnnxNormalFlow(bad)
+
+
+def test_thread_count_changes_nothing_but_rounding(random_onnx, make_slice):
+    path, _, _ = random_onnx
+    ev = make_slice(3000, (60, 40), seed=8)
+    one = OnnxNormalFlow(path, threads=1)(ev, (60, 40))
+    two = OnnxNormalFlow(path, threads=2)(ev, (60, 40))
+    # Threads own column blocks whose sliding sums start at different columns: float32
+    # rounding differs (~1e-6 relative), nothing else.
+    np.testing.assert_allclose(one.nx, two.nx, rtol=1e-3, atol=1e-2)
+    np.testing.assert_allclose(one.uncertainty, two.uncertainty, rtol=1e-3)
