@@ -9,10 +9,9 @@ Complex values are stored planar, ``[..., 0, m]`` real and ``[..., 1, m]`` imagi
 (float32), so that the inner loops over the ``d`` features are plain float arithmetic that
 LLVM vectorises (numba's interleaved complex64 arithmetic does not, and ran ~4x slower).
 
-The field and its box sums live in reusable workspaces ``(H, W, 2, d)`` that are never zeroed as
-a whole: the scatter initialises a pixel on its first event (``count == 0``) and the box pass
-reads the field only where ``count > 0``. This saves a 23 MB memset (and page faults) per slice
-at 346x260, d = 32.
+The per-pixel complex field is never stored: events are sorted by pixel (counting sort, O(N))
+and each pixel's value is computed when the box pass reaches it. Only the box sums live in a
+reusable workspace ``(H, W, 2, d)``, fully overwritten by each pass (no memset per slice).
 """
 
 from __future__ import annotations
@@ -21,59 +20,77 @@ import numpy as np
 from numba import njit, prange
 
 
-@njit(cache=True, parallel=True, fastmath=True)
-def scatter(x, y, dt, pol, hi, lo, lo_bits, field, count, row_used, bands):  # pragma: no cover
-    """Per-pixel sum of the time (and polarity) phases ``hi[dt >> b] * lo[pol, dt & mask]``.
-
-    x, y: uint16 (N,) px; dt: int64 (N,) us; pol: int8 (N,) index into ``lo`` (0 when the
-    encoding ignores polarity); hi (., 2, d), lo (P, 1024, 2, d): float32 planar tables;
-    field: (H, W, 2, d) float32 out; count (H, W) int32 must be zero on entry; row_used (H,)
-    bool is set. Thread c owns rows ``bands[c]:bands[c + 1]`` (chosen to hold similar numbers
-    of events), so no two threads write the same pixel.
-    """
-    d = field.shape[3]
+@njit(cache=True)
+def pixel_lists(x, y, dt, pol, width, height):  # pragma: no cover
+    """Counting sort of the events by pixel: ``(start (H*W + 1,), sdt (N,), spol (N,),
+    row_used (H,))``; the events of pixel ``p = y * W + x`` have times ``sdt[start[p]:start[p+1]]``
+    (us, input order) and polarity indices ``spol[...]``. Times and polarities are copied in
+    pixel order so that the box pass reads them sequentially. O(N + W H)."""
     n = x.shape[0]
+    npix = width * height
+    start = np.zeros(npix + 1, np.int64)
+    row_used = np.zeros(height, np.bool_)
+    for j in range(n):
+        start[np.int64(y[j]) * width + x[j] + 1] += 1
+        row_used[y[j]] = True
+    for p in range(npix):
+        start[p + 1] += start[p]
+    fill = start[:-1].copy()
+    sdt = np.empty(n, np.int64)
+    spol = np.empty(n, np.int8)
+    for j in range(n):
+        p = np.int64(y[j]) * width + x[j]
+        sdt[fill[p]] = dt[j]
+        spol[fill[p]] = pol[j]
+        fill[p] += 1
+    return start, sdt, spol, row_used
+
+
+@njit(cache=True, fastmath=True, inline="always")
+def _pixel_value(p, start, sdt, spol, hi, lo, lo_bits, phase_xy, yy, u, out, slot):  # pragma: no cover
+    """``out[slot] = phase_xy[yy, u] * sum over the pixel's events of hi * lo`` (planar)."""
+    d = out.shape[2]
     mask = (1 << lo_bits) - 1
-    for c in prange(bands.shape[0] - 1):
-        y0 = bands[c]
-        y1 = bands[c + 1]
-        for j in range(n):
-            yy = y[j]
-            if yy < y0 or yy >= y1:
-                continue
-            xx = x[j]
-            h = dt[j] >> lo_bits
-            l = dt[j] & mask
-            q = pol[j]
-            row_used[yy] = True
-            if count[yy, xx] == 0:
-                for m in range(d):
-                    field[yy, xx, 0, m] = hi[h, 0, m] * lo[q, l, 0, m] - hi[h, 1, m] * lo[q, l, 1, m]
-                    field[yy, xx, 1, m] = hi[h, 0, m] * lo[q, l, 1, m] + hi[h, 1, m] * lo[q, l, 0, m]
-            else:
-                for m in range(d):
-                    field[yy, xx, 0, m] += hi[h, 0, m] * lo[q, l, 0, m] - hi[h, 1, m] * lo[q, l, 1, m]
-                    field[yy, xx, 1, m] += hi[h, 0, m] * lo[q, l, 1, m] + hi[h, 1, m] * lo[q, l, 0, m]
-            count[yy, xx] += 1
+    for m in range(d):
+        out[slot, 0, m] = 0.0
+        out[slot, 1, m] = 0.0
+    for q in range(start[p], start[p + 1]):
+        h = sdt[q] >> lo_bits
+        l = sdt[q] & mask
+        b = spol[q]
+        for m in range(d):
+            out[slot, 0, m] += hi[h, 0, m] * lo[b, l, 0, m] - hi[h, 1, m] * lo[b, l, 1, m]
+            out[slot, 1, m] += hi[h, 0, m] * lo[b, l, 1, m] + hi[h, 1, m] * lo[b, l, 0, m]
+    for m in range(d):
+        fr = out[slot, 0, m]
+        fi = out[slot, 1, m]
+        pr = phase_xy[yy, u, 0, m]
+        pi = phase_xy[yy, u, 1, m]
+        out[slot, 0, m] = fr * pr - fi * pi
+        out[slot, 1, m] = fr * pi + fi * pr
 
 
 @njit(cache=True, parallel=True, fastmath=True)
-def box_pass(field, count, row_used, phase_xy, k, cum, ccum, nblk):  # pragma: no cover
+def box_pass(start, sdt, spol, hi, lo, lo_bits, row_used, phase_xy, k, cum, ccum, nblk):  # pragma: no cover
     """One pass over the grid: ``cum[y, x]`` = sum over rows ``<= y`` of the box sums along x
-    (``|dx| <= k``) of ``field * phase_xy``; ``ccum`` the same for ``count``.
+    (``|dx| <= k``) of the per-pixel field ``phase_xy * sum_events hi * lo``; ``ccum`` the same
+    for the event counts.
 
-    The running sums along y only accumulate row-box sums (bounded by the events of a 2k+1
-    pixel wide strip), which keeps float32 rounding small. Threads own blocks of columns and
-    read (never write) the ``k`` columns beyond their block. (A variant that keeps only a
-    rolling row and picks up the targets' sums on the way, writing no full grid, measured
-    ~1.5x slower; a running sum along x instead of the sliding box ~1.2x slower.)
+    The field is never stored: a pixel's value is computed from its events (``pixel_lists``)
+    when it enters the sliding box along x and kept in a small ring buffer until it leaves, so
+    the events are read in pixel order from a compact index instead of being scattered into a
+    W x H x d grid. The running sums along y only accumulate row-box sums (bounded by the
+    events of a 2k+1 pixel wide strip), which keeps float32 rounding small. Threads own blocks
+    of columns and also evaluate the k columns beyond their block.
     """
-    H, W = count.shape
-    d = field.shape[3]
+    H, W = ccum.shape
+    d = cum.shape[3]
+    ring_n = 2 * k + 2
     for c in prange(nblk):
         x0 = c * W // nblk
         x1 = (c + 1) * W // nblk
         box = np.empty((2, d), np.float32)
+        ring = np.empty((ring_n, 2, d), np.float32)
         for yy in range(H):
             if not row_used[yy]:
                 for xx in range(x0, x1):
@@ -82,6 +99,7 @@ def box_pass(field, count, row_used, phase_xy, k, cum, ccum, nblk):  # pragma: n
                         cum[yy, xx, 0, m] = 0.0 if yy == 0 else cum[yy - 1, xx, 0, m]
                         cum[yy, xx, 1, m] = 0.0 if yy == 0 else cum[yy - 1, xx, 1, m]
                 continue
+            row0 = yy * W
             # Sliding box along x: start with the window of column x0 - 1, then per column add
             # the pixel entering at x + k and remove the one leaving at x - k - 1 (only pixels
             # with events contribute, so empty pixels cost nothing here).
@@ -90,36 +108,34 @@ def box_pass(field, count, row_used, phase_xy, k, cum, ccum, nblk):  # pragma: n
                 box[1, m] = 0.0
             cb = 0
             for u in range(max(x0 - 1 - k, 0), min(x0 - 1 + k, W - 1) + 1):
-                if count[yy, u] > 0:
-                    cb += count[yy, u]
+                n = start[row0 + u + 1] - start[row0 + u]
+                if n > 0:
+                    cb += n
+                    s = u % ring_n
+                    _pixel_value(row0 + u, start, sdt, spol, hi, lo, lo_bits, phase_xy, yy, u, ring, s)
                     for m in range(d):
-                        fr = field[yy, u, 0, m]
-                        fi = field[yy, u, 1, m]
-                        pr = phase_xy[yy, u, 0, m]
-                        pi = phase_xy[yy, u, 1, m]
-                        box[0, m] += fr * pr - fi * pi
-                        box[1, m] += fr * pi + fi * pr
+                        box[0, m] += ring[s, 0, m]
+                        box[1, m] += ring[s, 1, m]
             for xx in range(x0, x1):
                 u = xx + k
-                if u < W and count[yy, u] > 0:
-                    cb += count[yy, u]
-                    for m in range(d):
-                        fr = field[yy, u, 0, m]
-                        fi = field[yy, u, 1, m]
-                        pr = phase_xy[yy, u, 0, m]
-                        pi = phase_xy[yy, u, 1, m]
-                        box[0, m] += fr * pr - fi * pi
-                        box[1, m] += fr * pi + fi * pr
+                if u < W:
+                    n = start[row0 + u + 1] - start[row0 + u]
+                    if n > 0:
+                        cb += n
+                        s = u % ring_n
+                        _pixel_value(row0 + u, start, sdt, spol, hi, lo, lo_bits, phase_xy, yy, u, ring, s)
+                        for m in range(d):
+                            box[0, m] += ring[s, 0, m]
+                            box[1, m] += ring[s, 1, m]
                 u = xx - k - 1
-                if u >= 0 and count[yy, u] > 0:
-                    cb -= count[yy, u]
-                    for m in range(d):
-                        fr = field[yy, u, 0, m]
-                        fi = field[yy, u, 1, m]
-                        pr = phase_xy[yy, u, 0, m]
-                        pi = phase_xy[yy, u, 1, m]
-                        box[0, m] -= fr * pr - fi * pi
-                        box[1, m] -= fr * pi + fi * pr
+                if u >= 0:
+                    n = start[row0 + u + 1] - start[row0 + u]
+                    if n > 0:
+                        cb -= n
+                        s = u % ring_n
+                        for m in range(d):
+                            box[0, m] -= ring[s, 0, m]
+                            box[1, m] -= ring[s, 1, m]
                 if yy == 0:
                     ccum[yy, xx] = cb
                     for m in range(d):

@@ -265,12 +265,12 @@ def encode_targets(
     t = np.ascontiguousarray(events["t"])
     dt = t - t.min()  # int64 us since the slice's first event, exact
     hi, lo = _planar_time_tables(cfg, int(dt.max()), matrix)
-    field, count, row_used, cum, ccum = _workspace(height, width, cfg.d)
+    cum, ccum = _workspace(height, width, cfg.d)
     nblk = numba.get_num_threads()
     pol = (events["p"] > 0).astype(np.int8) if cfg.polarity else np.zeros(len(events), np.int8)
-    _kernels.scatter(x, y, dt, pol, hi, lo, _LO_BITS, field, count, row_used, _row_bands(y, height, nblk))
+    start, sdt, spol, row_used = _kernels.pixel_lists(x, y, dt, pol, width, height)
     pxy = _planar_phase(phase_xy)
-    _kernels.box_pass(field, count, row_used, pxy, cfg.window_px, cum, ccum, nblk)
+    _kernels.box_pass(start, sdt, spol, hi, lo, _LO_BITS, row_used, pxy, cfg.window_px, cum, ccum, nblk)
     # Visiting targets in row order walks the box-sum grid forward instead of at random.
     ty = y[targets]
     order = np.argsort(ty, kind="stable")
@@ -281,14 +281,8 @@ def encode_targets(
     )
 
 
-def _row_bands(y: np.ndarray, height: int, n_bands: int) -> np.ndarray:
-    """Row boundaries (n_bands + 1,) int64 splitting the events into bands of similar counts."""
-    cum = np.cumsum(np.bincount(y, minlength=height))
-    cuts = np.searchsorted(cum, np.arange(1, n_bands) * cum[-1] / n_bands, side="left") + 1
-    return np.concatenate([[0], np.minimum(cuts, height), [height]]).astype(np.int64)
-
-
 _WORKSPACE: dict = {}
+_TIME_TABLES: dict = {}
 _PLANAR_PHASE: dict = {}
 
 
@@ -296,8 +290,6 @@ def _planar(a: np.ndarray) -> np.ndarray:
     """complex (..., d) -> float32 (..., 2, d): real and imaginary planes (see _kernels)."""
     return np.ascontiguousarray(np.stack([a.real, a.imag], axis=-2), dtype=np.float32)
 
-
-_TIME_TABLES: dict = {}
 
 
 def _planar_time_tables(cfg: EncodingConfig, span_us: int, matrix: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
@@ -324,25 +316,15 @@ def _planar_phase(phase_xy: np.ndarray) -> np.ndarray:
     return hit[1]
 
 
-def _workspace(height: int, width: int, d: int) -> tuple[np.ndarray, ...]:
-    """Reused per-shape buffers: field and box sums (H, W, 2, d) float32 (planar complex) and
-    their counts (H, W) int32 (need no zeroing, see _kernels), event counts (H, W) int32 and
-    row flags (H,), zeroed here. Not thread-safe: one slice at a time per process (the kernels
-    themselves run multi-threaded)."""
+def _workspace(height: int, width: int, d: int) -> tuple[np.ndarray, np.ndarray]:
+    """Reused per-shape buffers for the box sums: (H, W, 2, d) float32 (planar complex) and
+    counts (H, W) int64, fully overwritten by each pass. Not thread-safe: one slice at a time per
+    process (the kernels themselves run multi-threaded)."""
     key = (height, width, d)
     if key not in _WORKSPACE:
         _WORKSPACE.clear()  # keep one sensor's buffers only
-        _WORKSPACE[key] = (
-            np.empty((height, width, 2, d), np.float32),
-            np.empty((height, width), np.int32),
-            np.empty(height, np.bool_),
-            np.empty((height, width, 2, d), np.float32),
-            np.empty((height, width), np.int32),
-        )
-    field, count, row_used, cum, ccum = _WORKSPACE[key]
-    count.fill(0)
-    row_used.fill(False)
-    return field, count, row_used, cum, ccum
+        _WORKSPACE[key] = (np.empty((height, width, 2, d), np.float32), np.empty((height, width), np.int64))
+    return _WORKSPACE[key]
 
 
 def encode_targets_reference(
