@@ -6,14 +6,16 @@ Each target event i is encoded by the sum over the events j of the same slice th
     G_i = sum_j exp(i A^T (p_j - p_i)),   p = (x / xy_scale_px, y / xy_scale_px, t / t_scale_us)
 
 with ``A`` a fixed random ``(3, d)`` matrix, entries ``N(0, 1) * alpha`` drawn from
-``numpy.random.default_rng(seed)`` (rows: x, y, t). Because ``p_j - p_i`` is relative, the sum
+``numpy.random.default_rng(seed)`` (rows: x, y, t; with ``polarity=True`` a fourth coordinate
+``p = +1/-1`` and row). Because ``p_j - p_i`` is relative, the sum
 factorises into ``exp(-i A^T p_i) * sum_j exp(i A^T p_j)``: the second factor is a box sum of the
 per-pixel complex field ``F(x, y) = sum_{j at (x, y)} exp(i A^T p_j)`` (method.md section 3).
-The box sum is one pass down the pixel grid: running sums along each row give the row-box sums,
-which are accumulated down each column; a target's window sum is the difference of that column
-sum at the window's last row and at the row above its first. So a
-target costs O(d) whatever the window size, and the whole encoding costs
-O(N d + W H d + T d): linear in events, no N x N adjacency.
+The events are counting-sorted by pixel (O(N)); one pass down the pixel grid then slides a box
+along each row (a pixel's field value is computed from its events when it enters the box) and
+accumulates the row-box sums down each column; a target's window sum is the difference of that
+column sum at the window's last row and at the row above its first. So a target costs O(d)
+whatever the window size, and the whole encoding costs O(N d + W H d + T d): linear in events,
+no N x N adjacency (compiled loops in :mod:`evseg.veckm_flow._kernels`).
 
 Precision: float32 (complex64). The column running sums only accumulate row-box sums (bounded
 by the events of a ``2k+1`` pixel wide strip), not the whole image as a 2-D summed-area table
