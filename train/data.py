@@ -66,13 +66,15 @@ class SliceSpec:
             encoder's neighbourhoods only see events of the same slice.
         slices_per_scene: slices cut from each recording (random starts, each augmented anew).
         max_targets_per_slice: targets kept per slice (uniform subsample of the eligible ones).
-        targets: keyword arguments of :func:`evseg.veckm_flow.select_targets`.
+        targets: keyword arguments of :func:`evseg.veckm_flow.select_targets`, or a list of
+            such dicts of which one is drawn per slice (e.g. latest event per 2 px cell, as
+            ``evseg flow`` selects, and all events, as the pipeline's estimator sees them).
     """
 
     slice_us: tuple[int, int] = (10_000, 20_000)
     slices_per_scene: int = 8
     max_targets_per_slice: int = 2048
-    targets: dict[str, Any] | None = None
+    targets: dict[str, Any] | list[dict[str, Any]] | None = None
 
 
 @dataclass(frozen=True)
@@ -164,7 +166,10 @@ def slice_examples(
     from evseg.veckm_flow.encoding import encode_targets
     from evseg.veckm_flow.targets import select_targets
 
-    idx = np.asarray(select_targets(s.events, s.sensor_size, **(spec.targets or {})), dtype=np.int64)
+    choice = spec.targets or {}
+    if isinstance(choice, (list, tuple)):
+        choice = choice[int(rng.integers(len(choice)))] if choice else {}
+    idx = np.asarray(select_targets(s.events, s.sensor_size, **choice), dtype=np.int64)
     n = len(s)
     nf = s.normal_flow if s.normal_flow is not None else np.full((n, 2), np.nan, np.float32)
     of = s.optical_flow if s.optical_flow is not None else np.full((n, 2), np.nan, np.float32)

@@ -135,3 +135,11 @@ def test_simulated_scene_shard(tmp_path):
     # Simulated targets always carry GT normal flow (noise events are never targets).
     assert np.isfinite(rows["normal_flow"]).all()
     assert np.all(np.linalg.norm(rows["normal_flow"], axis=1) > 0)
+
+
+def test_target_selection_drawn_per_slice(edge_recording):
+    rec = load_flow_recording(edge_recording)
+    spec = SliceSpec(max_targets_per_slice=10**6, targets=[{"cell_px": None}, {"cell_px": 4}])
+    counts = {len(slice_examples(rec, {}, spec, np.random.default_rng(i))["features"]) for i in range(12)}
+    # all events with flow vs the latest event of each 4x4 cell (10 x 8 cells on 40 x 30 px)
+    assert counts == {len(rec), 80}
