@@ -1,0 +1,19 @@
+import numpy as np
+
+from evseg.veckm_flow.bench import SENSOR, benchmark, synthetic_slice
+from evseg.events import validate_events
+
+
+def test_synthetic_slice_has_exact_size_and_is_valid():
+    ev = synthetic_slice(20_000, seed=3)
+    assert len(ev) == 20_000
+    validate_events(ev, SENSOR)
+    assert ev["t"][-1] - ev["t"][0] < 20_000
+
+
+def test_quick_benchmark_rows_name_their_input():
+    rows = benchmark(repeats=1, quick=True)
+    assert len(rows) == 3 and all(r.keys() == rows[0].keys() for r in rows)
+    assert [r["events"] for r in rows] == [10_000, 100_000, 100_000]
+    assert rows[1]["targets"] == 10_000 and rows[-1]["method"] == "plane-fit baseline"
+    assert all(np.isfinite(r["total_ms"]) and r["total_ms"] > 0 for r in rows)
