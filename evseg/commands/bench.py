@@ -25,6 +25,7 @@ TARGETS = {
     "flow": "evseg.veckm_flow.bench:benchmark",
     "seg": "evseg.segmentation.bench:benchmark",
     "pipeline": "evseg.pipeline_bench:benchmark",
+    "memory": "evseg.memory_bench:benchmark",
 }
 
 

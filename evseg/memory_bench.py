@@ -1,0 +1,132 @@
+"""Bounded memory: peak RSS of `evseg segment` streaming long recordings from disk.
+
+A 1 s simulated EVIMO-like tile (128x96 px, thinned to the requested event rate) is repeated
+with time offsets into recordings of increasing length, streamed to a DSEC-style HDF5 file
+through :func:`evseg.io.hdf5.write_h5_chunks` (bounded memory; never committed, written to a
+temporary folder). Each recording is segmented by `evseg segment --flow-method planefit` in a
+child process whose resident memory is sampled from ``/proc/PID/status`` every 0.2 s; the peak
+is the kernel's ``ru_maxrss`` of that child (``os.wait4``). Flat memory = the same peak for
+10 s and 10 min, and no growth between the middle and the end of one run.
+
+The plane-fit flow is used because no trained model ships yet and because a precomputed flow
+file (``--flow``) is loaded whole, by design. ``OMP_NUM_THREADS=1`` in the child keeps the
+numbers comparable on a shared machine.
+
+Run: ``evseg bench memory --repeats 1`` (10 s, 60 s, 600 s at 20 k events/s, about 12 min on
+2 cores; ``--quick``: 5 s and 20 s). Memory does not vary between runs; one repeat suffices.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+SENSOR = (128, 96)
+TILE_US = 1_000_000
+SAMPLE_S = 0.2
+
+
+def tile_events(rate_ev_s: float, seed: int = 0) -> np.ndarray:
+    """One second of a simulated EVIMO-like scene at ``SENSOR``, thinned to ``rate_ev_s``.
+
+    Returns an EVENT_DTYPE array with ``0 <= t < TILE_US`` (us), sorted.
+    """
+    from evseg.simulator import load_scene_preset, simulate
+
+    rec = simulate(load_scene_preset("evimo_like").with_sensor_size(*SENSOR), seed=seed, duration_us=TILE_US)
+    ev = rec.stream.events
+    keep = np.random.default_rng(seed).random(len(ev)) < min(1.0, rate_ev_s / max(len(ev), 1))
+    return ev[keep]
+
+
+def write_long_recording(path: Path, tile: np.ndarray, duration_s: int) -> int:
+    """Write ``duration_s`` copies of the 1 s ``tile`` back to back (HDF5, streamed); events."""
+    from evseg.io.hdf5 import write_h5_chunks
+
+    def chunks():
+        for k in range(duration_s):
+            c = tile.copy()
+            c["t"] += k * TILE_US
+            yield c
+
+    write_h5_chunks(chunks(), path, lambda: (SENSOR, 0, None))
+    return len(tile) * duration_s
+
+
+def _rss_kb(pid: int) -> int | None:
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            for line in f:
+                if line.startswith("VmRSS:"):
+                    return int(line.split()[1])
+    except (FileNotFoundError, ProcessLookupError):
+        return None
+    return None
+
+
+def measure_segment(recording: Path, out: Path) -> dict:
+    """Run `evseg segment` on ``recording`` in a child; RSS samples (kB) and its peak."""
+    cmd = [sys.executable, "-c", "import sys; from evseg.cli import main; sys.exit(main(sys.argv[1:]))",
+           "segment", str(recording), "--out", str(out), "--flow-method", "planefit", "--no-progress"]
+    env = dict(os.environ, OMP_NUM_THREADS="1")
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env)
+    samples: list[int] = []
+    while True:
+        pid, status, usage = os.wait4(proc.pid, os.WNOHANG)
+        if pid:
+            break
+        rss = _rss_kb(proc.pid)
+        if rss is not None:
+            samples.append(rss)
+        time.sleep(SAMPLE_S)
+    proc.returncode = os.waitstatus_to_exitcode(status)
+    wall = time.perf_counter() - t0
+    err = proc.stderr.read().decode(errors="replace")
+    proc.stderr.close()
+    if proc.returncode != 0:
+        raise RuntimeError(f"evseg segment failed ({proc.returncode}): {err.strip()}")
+    return {"wall_s": wall, "peak_kb": int(usage.ru_maxrss), "samples_kb": samples}
+
+
+def _row(duration_s: int, n_events: int, file_mb: float, m: dict) -> dict:
+    s = np.asarray(m["samples_kb"], dtype=np.float64) / 1024
+    q = max(1, len(s) // 4)
+    # Growth within one run: median RSS of the last quarter minus that of the second quarter
+    # (the first quarter holds imports and warm-up).
+    growth = float(np.median(s[-q:]) - np.median(s[q : 2 * q])) if len(s) >= 8 else float("nan")
+    return {
+        "recording_s": duration_s,
+        "events": n_events,
+        "rate_ev_s": round(n_events / duration_s),
+        "file_mb": file_mb,
+        "wall_s": m["wall_s"],
+        "samples": len(s),
+        "peak_rss_mb": m["peak_kb"] / 1024,
+        "median_rss_mb": float(np.median(s)) if len(s) else float("nan"),
+        "growth_mb": growth,
+    }
+
+
+def benchmark(repeats: int = 1, quick: bool = False, rate_ev_s: float = 20_000,
+              durations_s: tuple[int, ...] | None = None) -> list[dict]:
+    """Peak RSS of `evseg segment` per recording length (median over ``repeats`` runs)."""
+    if durations_s is None:
+        durations_s = (5, 20) if quick else (10, 60, 600)
+    tile = tile_events(rate_ev_s)
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="evseg-memory-") as d:
+        for duration in durations_s:
+            rec = Path(d) / f"long_{duration}s.h5"
+            n = write_long_recording(rec, tile, duration)
+            runs = [measure_segment(rec, Path(d) / "result.npz") for _ in range(repeats)]
+            med = sorted(runs, key=lambda m: m["peak_kb"])[len(runs) // 2]
+            rows.append(_row(duration, n, rec.stat().st_size / 2**20, med))
+            rec.unlink()
+    return rows
