@@ -450,7 +450,9 @@ class NormalFlowDataModule(_lightning_datamodule_base()):
         for r in real_recordings:
             if not Path(r).is_file():
                 raise ConfigError(f"data.real_recordings: file not found: {r}")
-        self.encoding = dict(encoding or {})
+        # All fields spelled out (defaults filled in): the shard key and the features then
+        # never depend on defaults that may change between versions.
+        self.encoding = _encoding_config(dict(encoding or {})).to_dict()
         self.presets = list(presets)
         self.train_seeds, self.val_seeds = train, val
         self.duration_us = int(duration_us)

@@ -51,7 +51,11 @@ def test_fit_writes_config_metrics_and_a_loadable_checkpoint(tmp_path, edge_reco
     run = _run_dir(tmp_path)
     cfg = yaml.safe_load((run / "config.yaml").read_text())
     assert cfg["seed_everything"] == 0
-    assert cli.datamodule.encoding == cli.model.hparams.encoding == cfg["model"]["encoding"]  # linked
+    from evseg.veckm_flow.encoding import EncodingConfig
+
+    # linked by the CLI: the data are encoded with the model's encoding
+    full = EncodingConfig.from_dict(cfg["model"]["encoding"]).to_dict()
+    assert cli.datamodule.encoding == cli.model.hparams.encoding == full
     rows = list(csv.DictReader((run / "metrics.csv").open()))
     assert any(r.get("train/of") for r in rows)  # the optical-flow loss was used
     head, enc = load_head_checkpoint(run / "checkpoints" / "last.ckpt")
