@@ -47,7 +47,7 @@ def _estimator():
     from evseg.export import export_onnx
     from evseg.veckm_flow import EncodingConfig, build_head
 
-    cfg = EncodingConfig()
+    cfg = EncodingConfig(polarity=True)  # the recommended encoding; same cost either way
     path = Path(tempfile.mkdtemp(prefix="evseg-bench-")) / "random_head.onnx"
     head = build_head(cfg)
     export_onnx(head, cfg, path)

@@ -72,13 +72,15 @@ class EncodingConfig:
         seed: seed of ``numpy.random.default_rng`` that draws the random matrix.
         polarity: add the polarity (+1/-1) as a fourth coordinate (a fourth row of ``A``), so
             that the encoding tells same-polarity from opposite-polarity neighbours (VecKM
-            itself ignores polarity). Costs nothing at run time.
+            itself ignores polarity). Costs nothing at run time. Off by default so that
+            configs and checkpoints written before this field existed keep their meaning;
+            recommended on for new models (see below).
 
     Defaults: chosen on simulated scenes (evimo_like, eed_like, ego_only; 20 ms slices, cell
     targets, same short training each): a 7x7 window with alpha 2 and 10 ms time scale gave a
     median angular error of 25 deg against 29 deg for 9x9 and 39-48 deg for 17x17 windows
-    (alpha 2-4); d = 16 instead of 32 cost 7 deg; the polarity coordinate gained 2 deg (22.5
-    vs 24.4) and 2 points of sign-correct rate. Textured scenes favour small windows: a large
+    (alpha 2-4); d = 16 instead of 32 cost 7 deg; ``polarity=True`` gained 2 deg (22.5 vs
+    24.4) and 2 points of sign-correct rate. Textured scenes favour small windows: a large
     window mixes edges of different orientation.
     """
 
@@ -88,7 +90,7 @@ class EncodingConfig:
     xy_scale_px: float = 3.0
     t_scale_us: float = 10000.0
     seed: int = 0
-    polarity: bool = True
+    polarity: bool = False
 
     def __post_init__(self) -> None:
         for name in ("d", "window_px", "seed"):

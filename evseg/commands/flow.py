@@ -125,7 +125,8 @@ def run(args: argparse.Namespace) -> int:
                 window_us=np.int64(window_us), method=np.str_(info["method"]), config=np.str_(json.dumps(info)),
             )
     if args.video is not None:
-        _write_video(args.video, frames, sensor_size, window_us, args.max_px_s)
+        cell = args.cell_px if args.targets == "cell" else 1
+        _write_video(args.video, frames, sensor_size, window_us, args.max_px_s, cell)
     valid = float(np.mean(flow.valid)) if len(flow) else 0.0
     print(
         f"{args.out}: {len(flow)} normal flows ({valid:.1%} valid) for {n_events} events, "
@@ -134,8 +135,9 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _write_video(path: Path, frames, sensor_size, window_us: int, max_px_s: float | None) -> None:
-    """One frame per slice: flow colours at the target pixels, colour-wheel legend, time."""
+def _write_video(path: Path, frames, sensor_size, window_us: int, max_px_s: float | None, cell_px: int = 1) -> None:
+    """One frame per slice: flow colours at the target pixels (filling each target's cell),
+    colour-wheel legend, time."""
     import cv2
     import numpy as np
 
@@ -159,7 +161,8 @@ def _write_video(path: Path, frames, sensor_size, window_us: int, max_px_s: floa
             raise EvsegError(f"{path}: OpenCV cannot open an mp4 writer here")
         try:
             for i, (ev, flow) in enumerate(frames):
-                img = flow_events_to_image(ev["x"], ev["y"], np.stack([flow.nx, flow.ny], 1), sensor_size, max_px_s)
+                xs, ys, fl = _fill_cells(ev["x"], ev["y"], np.stack([flow.nx, flow.ny], 1), cell_px, sensor_size)
+                img = flow_events_to_image(xs, ys, fl, sensor_size, max_px_s)
                 img = cv2.resize(img, size, interpolation=cv2.INTER_NEAREST)
                 lh, lw = legend.shape[:2]
                 img[-lh:, -lw:] = legend
@@ -169,3 +172,16 @@ def _write_video(path: Path, frames, sensor_size, window_us: int, max_px_s: floa
         finally:
             writer.release()
         tmp_mp4.replace(tmp)
+
+
+def _fill_cells(x, y, flow, cell_px: int, sensor_size):
+    """Repeat each target's flow over the pixels of its ``cell_px`` cell (display only)."""
+    import numpy as np
+
+    if cell_px <= 1:
+        return x, y, flow
+    dy, dx = np.mgrid[0:cell_px, 0:cell_px]
+    xs = (x.astype(np.int64) // cell_px * cell_px)[:, None] + dx.ravel()
+    ys = (y.astype(np.int64) // cell_px * cell_px)[:, None] + dy.ravel()
+    keep = (xs < sensor_size[0]) & (ys < sensor_size[1])
+    return xs[keep], ys[keep], np.repeat(flow, cell_px * cell_px, axis=0)[keep.ravel()]

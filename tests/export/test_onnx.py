@@ -18,7 +18,7 @@ PARITY_ATOL = 1e-5
 
 @pytest.fixture(scope="module")
 def exported(tmp_path_factory):
-    cfg = EncodingConfig(d=16, window_px=5, alpha=3.0, seed=11)
+    cfg = EncodingConfig(d=16, window_px=5, alpha=3.0, seed=11, polarity=True)
     head = build_head(cfg, seed=1, hidden=48, layers=2)
     path = tmp_path_factory.mktemp("exp") / "m.onnx"
     export_onnx(head, cfg, path, extra_metadata={"note": "test"})

@@ -70,7 +70,7 @@ def test_matrix_is_seeded():
     b = encoding_matrix(EncodingConfig(d=8, seed=0, alpha=2.0))
     c = encoding_matrix(EncodingConfig(d=8, seed=1, alpha=2.0))
     np.testing.assert_array_equal(a, b)
-    assert a.shape == (4, 8) and not np.allclose(a, c)
+    assert a.shape == (3, 8) and not np.allclose(a, c)
 
 
 def test_config_validation_and_roundtrip():
