@@ -6,6 +6,7 @@ videos); the pipeline itself (:mod:`evseg.pipeline`) only returns values.
 
 from __future__ import annotations
 
+import contextlib
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -62,6 +63,22 @@ def config_yaml(config) -> str:
     return yaml.safe_dump(d, sort_keys=False)
 
 
+@contextlib.contextmanager
+def _closing(writer, windows_done):
+    """Close ``writer`` at the end; after an error (or Ctrl-C) keep a result flagged partial
+    only when ``windows_done()``: a failure before the first window (e.g. a bad first chunk)
+    writes nothing, so an existing result is not replaced by an empty one."""
+    try:
+        yield writer
+    except BaseException:
+        if windows_done():
+            writer.close(partial=True)
+        else:
+            writer.abort()
+        raise
+    writer.close()
+
+
 def run_segment_job(job: SegmentJob) -> str:
     """Run the job; returns a one-paragraph summary for the terminal."""
     from tqdm import tqdm
@@ -93,7 +110,8 @@ def run_segment_job(job: SegmentJob) -> str:
         stride_us = cfg.stride_us or cfg.window_us
         n_windows = n_objects = 0
         ids: set[int] = set()
-        with ResultWriter(job.out, None, rec.sensor_size, config_yaml(cfg), with_masks=job.masks) as writer, \
+        writer = ResultWriter(job.out, None, rec.sensor_size, config_yaml(cfg), with_masks=job.masks)
+        with _closing(writer, lambda: n_windows > 0), \
                 VideoSink(job.video, job.frames) as sink, \
                 tqdm(desc="segment", unit="win", disable=not job.progress) as bar:
             seen = [0]
