@@ -74,13 +74,16 @@ def test_failure_mid_run_leaves_partial_result(exc, rc, monkeypatch, tmp_path, c
     assert sorted(p.name for p in tmp_path.iterdir()) == ["r.npz"]  # temporary label file removed
 
 
-def test_failure_in_first_window_gives_empty_partial_result(monkeypatch, tmp_path, sim_files):
+def test_failure_before_the_first_window_writes_nothing(monkeypatch, tmp_path, sim_files):
+    """Nothing processed, nothing to keep: no empty result, an existing result untouched."""
     _, recording, flow = sim_files
     _fail_after(monkeypatch, 0, KeyboardInterrupt())
     out = tmp_path / "r.npz"
     assert main(["segment", str(recording), "--flow", str(flow), "--out", str(out), "--no-progress"]) == 130
-    r = load_result(out)
-    assert r.partial and r.n_events_processed == 0 and len(r.label) == 0 and len(r.window_t0_us) == 0
+    assert not out.exists() and list(tmp_path.iterdir()) == []
+    out.write_bytes(b"an earlier result")
+    assert main(["segment", str(recording), "--flow", str(flow), "--out", str(out), "--no-progress"]) == 130
+    assert out.read_bytes() == b"an earlier result" and list(tmp_path.iterdir()) == [out]
 
 
 def test_partial_result_replaces_an_older_result_atomically(monkeypatch, tmp_path, sim_files, full_run):
