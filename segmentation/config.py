@@ -134,6 +134,9 @@ class SegmentationConfig:
     own parallax), not an object: its nodes join the background (needs the sensor size)."""
     min_object_nodes: int = 6
     """Objects (IMOs) with fewer nodes are set to -1 (unassigned) in the result."""
+    split_gap_px: float = 12.0
+    """Parts of one motion label closer than this (px, box to box) are one object (an object
+    seen through a net falls apart into nearby pieces); farther parts are separate objects."""
     mask_method: str = "hull"
     """'hull': convex hull of the object's nodes, dilated by mask_dilate_px; 'dilate':
     the object's nodes rasterised and dilated by cell_px/2 + mask_dilate_px, holes closed."""
@@ -148,7 +151,7 @@ class SegmentationConfig:
         _check_choice("potts_weighting", self.potts_weighting, POTTS_WEIGHTINGS)
         _check_choice("sampling_flow", self.sampling_flow, SAMPLING_FLOWS)
         for name in ("n_resampled", "cell_px", "min_flow_px_s", "residual_scale_px_s", "residual_scale_rel",
-                     "lambda_p", "lambda_m", "lm_damping", "mask_dilate_px", "merge_tol"):
+                     "lambda_p", "lambda_m", "lm_damping", "mask_dilate_px", "merge_tol", "split_gap_px"):
             if getattr(self, name) < 0:
                 raise ConfigError(f"SegmentationConfig.{name} must be >= 0, got {getattr(self, name)}")
         for name in ("truncation", "uncertainty_scale", "sampling_bin", "max_object_extent", "edge_scale_px", "robust_scale",

@@ -57,19 +57,29 @@ def background_layers(
 
 
 def split_objects(
-    labels: np.ndarray, edges: np.ndarray, models: np.ndarray, min_nodes: int
+    labels: np.ndarray,
+    edges: np.ndarray,
+    models: np.ndarray,
+    min_nodes: int,
+    x: np.ndarray | None = None,
+    y: np.ndarray | None = None,
+    gap_px: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray, dict[int, np.ndarray]]:
-    """Make every sizeable connected part of a moving label its own object.
+    """Make every sizeable separate part of a moving label its own object.
 
-    Two objects moving alike share one motion label; on the image they are separate connected
-    parts of it. Each part with at least ``min_nodes`` nodes (and at least a quarter of the
-    label's largest part) becomes an object with a copy of the label's model; smaller
-    fragments keep the label of the label's largest part and stay out of its region. A label
-    with no part of ``min_nodes`` nodes is dropped and its nodes become -1.
+    Two objects moving alike share one motion label; on the image they are separate parts of
+    it. A part is a connected component of the label's own graph edges, joined with the label's
+    other components whose boxes come within ``gap_px`` (an object seen through a net, or with
+    a few outlier nodes inside, falls apart into nearby components). Each part with at least
+    ``min_nodes`` nodes (and at least a quarter of the label's largest part) becomes an object
+    with a copy of the label's model; smaller fragments keep the label of the label's largest
+    part and stay out of its region. A label with no part of ``min_nodes`` nodes is dropped
+    and its nodes become -1.
 
     Args:
         labels: (M,) 0 = background, 1..K objects, -1 unassigned. edges: (E, 2).
         models: (K+1, 4). min_nodes: minimum size of a separate object.
+        x, y: (M,) node positions px (needed when gap_px > 0). gap_px: joining distance, px.
     Returns:
         (labels, models, regions): new labels 1..K' by decreasing part size, (K'+1, 4) models,
         and {k: node indices of object k's region}.
@@ -85,6 +95,9 @@ def split_objects(
     e = edges[same]
     adj = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(m, m))
     _, comp = connected_components(adj, directed=False)
+    if gap_px > 0 and x is not None:
+        comp = _join_near_components(comp, labels, np.asarray(x, dtype=np.float64),
+                                     np.asarray(y, dtype=np.float64), gap_px)
     parts = []  # (size, label, component id)
     fragments = {}  # label -> (component ids that stay with its largest part)
     for k in range(1, len(models)):  # loop over labels (a handful), arrays inside
@@ -113,6 +126,33 @@ def split_objects(
         frag = (labels == k) & np.isin(comp, small)
         new_labels[frag] = part_label[(k, main)]
     return new_labels, np.array(new_models).reshape(-1, 4), regions
+
+
+def _join_near_components(comp, labels, x, y, gap_px):
+    """Relabel components so that components of one label with boxes within gap_px share an id."""
+    from scipy.sparse.csgraph import connected_components
+
+    n = int(comp.max()) + 1
+    lab_of = np.full(n, -1, dtype=np.int64)
+    lab_of[comp] = labels
+    x0 = np.full(n, np.inf)
+    y0 = np.full(n, np.inf)
+    x1 = np.full(n, -np.inf)
+    y1 = np.full(n, -np.inf)
+    np.minimum.at(x0, comp, x)
+    np.minimum.at(y0, comp, y)
+    np.maximum.at(x1, comp, x)
+    np.maximum.at(y1, comp, y)
+    cand = np.flatnonzero(lab_of >= 1)  # components of object labels only
+    if len(cand) < 2:
+        return comp
+    a, b = cand[:, None], cand[None, :]
+    near = ((lab_of[a] == lab_of[b]) & (x0[a] <= x1[b] + gap_px) & (x0[b] <= x1[a] + gap_px)
+            & (y0[a] <= y1[b] + gap_px) & (y0[b] <= y1[a] + gap_px))
+    _, group = connected_components(near, directed=False)
+    new = np.arange(n)
+    new[cand] = cand[np.unique(group, return_index=True)[1]][group]
+    return new[comp]
 
 
 def region_box(

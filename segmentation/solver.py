@@ -316,7 +316,8 @@ def segment_normal_flow(
             remap[layers] = 0
             labels = np.where(labels >= 0, remap[np.maximum(labels, 0)], -1)
             models = models[keep]
-    labels, models, regions = split_objects(labels, graph.edges, models, cfg.min_object_nodes)
+    labels, models, regions = split_objects(labels, graph.edges, models, cfg.min_object_nodes,
+                                            graph.x, graph.y, cfg.split_gap_px)
     boxes, masks = {}, {}
     for k, nodes in regions.items():  # loop over objects (a handful), arrays inside
         # Motion compensation: move each node along its object's flow to the window's mid-time,

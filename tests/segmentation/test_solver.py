@@ -128,3 +128,19 @@ def test_split_objects_unit():
     new, mod, regions = split_objects(labels, edges, models, min_nodes=3)
     np.testing.assert_array_equal(new, [1, 1, 1, 0, 0, 1, 1])  # fragment stays with its label
     np.testing.assert_array_equal(regions[1], [0, 1, 2])
+
+
+def test_split_objects_joins_nearby_pieces_of_one_label():
+    from evseg.segmentation.outputs import split_objects
+
+    # label 1 in three pieces along a line: {0,1,2} at x 0..2, {4,5,6} at x 6..8 (gap 4 px),
+    # {8,9,10} at x 40..42; label 0 between them
+    x = np.array([0, 1, 2, 4, 6, 7, 8, 20, 40, 41, 42], dtype=float)
+    y = np.zeros(11)
+    labels = np.array([1, 1, 1, 0, 1, 1, 1, 0, 1, 1, 1])
+    edges = np.array([[i, i + 1] for i in range(10)])
+    models = np.array([[1.0, 0, 0, 0], [1.0, 0, 5, 5]])
+    new, mod, regions = split_objects(labels, edges, models, 3, x, y, gap_px=5.0)
+    np.testing.assert_array_equal(new, [1, 1, 1, 0, 1, 1, 1, 0, 2, 2, 2])
+    new, _, _ = split_objects(labels, edges, models, 3, x, y, gap_px=0.0)
+    assert len(np.unique(new[new > 0])) == 3
