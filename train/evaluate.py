@@ -16,6 +16,7 @@ it rejects some fits and the comparison must be on the same events):
 - ``ae_learned_common``, ``ae_baseline``: the same on the common targets;
 - ``ae_reduction``: ``1 - ae_learned_common / ae_baseline`` (target: >= 0.30);
 - ``sign_learned``, ``sign_baseline``: share with ``p . n > 0`` (common targets);
+  ``sign_learned_all``: the same for the learned flow on all targets;
 - ``relmag_learned``, ``relmag_baseline``: median ``| |p| - |n| | / |n|`` (common targets);
 - ``normerr_learned``, ``normerr_baseline``: median VecKM_flow norm error
   ``| |p| - (p . u) / |p| |`` against GT optical flow ``u``, px/s (common targets);
@@ -135,6 +136,7 @@ def flow_accuracy_row(a: dict[str, np.ndarray], drop_fraction: float = 0.2) -> d
         "ae_reduction": 1.0 - ae_common / ae_base if ae_base > 0 else float("nan"),
         "sign_learned": sign(p[common], n[common]),
         "sign_baseline": sign(b[common], n[common]),
+        "sign_learned_all": sign(p, n),
         "relmag_learned": _median(relative_magnitude_error(p[common], n[common])),
         "relmag_baseline": _median(relative_magnitude_error(b[common], n[common])),
         "normerr_learned": _median(norm_error(p[common], u[common])),

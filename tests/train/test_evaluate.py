@@ -31,6 +31,7 @@ def test_accuracy_row_exact_values():
     assert row["ae_learned_common"] == pytest.approx(90.0)  # targets 0, 2, 3: 0, 90, 180
     assert row["ae_baseline"] == pytest.approx(0.0)  # 45, 0, 0
     assert row["sign_learned"] == pytest.approx(1 / 3) and row["sign_baseline"] == pytest.approx(1.0)
+    assert row["sign_learned_all"] == pytest.approx(3 / 5)
     # dropping the most uncertain (target 3, AE 180) leaves 0, 0, 90, 0: median 0
     assert row["ae_learned_keep80"] == pytest.approx(0.0)
     assert row["relmag_learned"] == pytest.approx(0.0)  # |p| = |n| on the common targets
