@@ -418,3 +418,14 @@ def test_pipeline_with_planefit_flow_gives_defined_labels(ev):
 
     pipe = MotionSegmentationPipeline(PipelineConfig(flow="planefit"), sensor_size=PIPE_SIZE)
     _check_run(list(pipe.run(EventStream(ev, PIPE_SIZE))), ev)
+
+
+@settings(max_examples=25, **FAST)
+@given(ev=pipeline_events())
+def test_pipeline_with_learned_flow_gives_defined_labels(ev, random_onnx):
+    """The learned flow (a random-weights head: no trained model ships yet) on the same inputs."""
+    from evseg.pipeline import MotionSegmentationPipeline, PipelineConfig
+
+    cfg = PipelineConfig(flow="learned", model_path=str(random_onnx), threads=1)
+    pipe = MotionSegmentationPipeline(cfg, sensor_size=PIPE_SIZE)
+    _check_run(list(pipe.run(EventStream(ev, PIPE_SIZE))), ev)
