@@ -3,7 +3,7 @@
 Defined result = one int16 label per event of the window in {-1 unassigned, 0 background} or an
 object id that has a box inside the sensor, and the pipeline keeps going (the next, normal
 window is segmented as if nothing happened). Each case runs with hand-built precomputed flow,
-the plane-fit baseline and the learned flow (a random-weights ONNX head: no trained model ships).
+the plane-fit baseline and the learned flow (a random-weights ONNX head, and the shipped model).
 """
 
 from __future__ import annotations
@@ -34,7 +34,13 @@ def _check(res, sensor_size=SIZE) -> None:
 
 
 def _pipeline(flow: str, random_onnx, seg: SegmentationConfig | None = None) -> MotionSegmentationPipeline:
-    cfg = PipelineConfig(flow=flow, window_us=WINDOW_US, segmentation=seg,
+    """``flow``: precomputed, planefit, learned (random-weights head) or shipped (the default model)."""
+    if flow == "shipped":
+        from evseg.veckm_flow.inference import DEFAULT_MODEL
+
+        if not DEFAULT_MODEL.is_file():
+            pytest.skip(f"no shipped model at {DEFAULT_MODEL}")
+    cfg = PipelineConfig(flow="learned" if flow == "shipped" else flow, window_us=WINDOW_US, segmentation=seg,
                          model_path=str(random_onnx) if flow == "learned" else None, threads=1)
     return MotionSegmentationPipeline(cfg, sensor_size=SIZE)
 
@@ -95,7 +101,7 @@ def _with_normal_window_after(ev: np.ndarray) -> np.ndarray:
     return np.concatenate([ev, normal, tail])
 
 
-@pytest.mark.parametrize("flow", ["precomputed", "planefit", "learned"])
+@pytest.mark.parametrize("flow", ["precomputed", "planefit", "learned", "shipped"])
 @pytest.mark.parametrize("case", CASES)
 def test_degenerate_window_gives_defined_labels_and_pipeline_goes_on(case, flow, random_onnx):
     ev = _with_normal_window_after(_degenerate(case))

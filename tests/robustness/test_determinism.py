@@ -8,6 +8,7 @@ flow), both flow estimators, and the pipeline fed the same recording in differen
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from evseg.cli import main
 from evseg.events import EventStream
@@ -29,6 +30,22 @@ def test_cli_planefit_twice_gives_identical_results(tmp_path, sim_files):
     np.testing.assert_array_equal(a.boxes, b.boxes)
     np.testing.assert_array_equal(a.masks, b.masks)
     assert a.config == b.config
+
+
+def test_cli_shipped_learned_flow_twice_gives_identical_labels(tmp_path, sim_files):
+    from evseg.veckm_flow.inference import DEFAULT_MODEL
+
+    if not DEFAULT_MODEL.is_file():
+        pytest.skip(f"no shipped model at {DEFAULT_MODEL}")
+    rec, recording, _ = sim_files
+    outs = [tmp_path / f"r{k}.npz" for k in range(3)]
+    for out, threads in zip(outs, (["--threads", "1"], [], [])):  # default threads: all cores
+        assert main(["segment", str(recording), "--out", str(out), "--no-progress", *threads]) == 0
+    a, b, c = (load_result(p) for p in outs)
+    assert len(a.label) == len(rec.stream) and (a.label >= 0).any()
+    for other in (b, c):  # the thread count does not change any label
+        np.testing.assert_array_equal(a.label, other.label)
+        np.testing.assert_array_equal(a.boxes, other.boxes)
 
 
 def test_simulator_and_flow_estimators_are_deterministic(random_onnx):
