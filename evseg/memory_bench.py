@@ -3,17 +3,18 @@
 A 1 s simulated EVIMO-like tile (128x96 px, thinned to the requested event rate) is repeated
 with time offsets into recordings of increasing length, streamed to a DSEC-style HDF5 file
 through :func:`evseg.io.hdf5.write_h5_chunks` (bounded memory; never committed, written to a
-temporary folder). Each recording is segmented by `evseg segment --flow-method planefit` in a
+temporary folder). Each recording is segmented by `evseg segment --flow-method METHOD` in a
 child process whose resident memory is sampled from ``/proc/PID/status`` every 0.2 s; the peak
 is the kernel's ``ru_maxrss`` of that child (``os.wait4``). Flat memory = the same peak for
 10 s and 10 min, and no growth between the middle and the end of one run.
 
-The plane-fit flow is used because no trained model ships yet and because a precomputed flow
-file (``--flow``) is loaded whole, by design. ``OMP_NUM_THREADS=1`` in the child keeps the
-numbers comparable on a shared machine.
+The 10 min run uses the plane-fit flow (the cheaper estimator: 10 min of recording take about
+10 min on 2 busy cores); the learned flow (shipped model) runs on 10 s and 60 s. A precomputed
+flow file (``--flow``) is loaded whole by design, so it is not a streaming case.
+``OMP_NUM_THREADS=1`` in the child keeps the numbers comparable on a shared machine.
 
-Run: ``evseg bench memory --repeats 1`` (10 s, 60 s, 600 s at 20 k events/s, about 12 min on
-2 cores; ``--quick``: 5 s and 20 s). Memory does not vary between runs; one repeat suffices.
+Run: ``evseg bench memory --repeats 1`` (about 15 min on 2 cores; ``--quick``: plane-fit flow on
+5 s and 20 s). Memory does not vary between runs; one repeat suffices.
 """
 
 from __future__ import annotations
@@ -70,10 +71,10 @@ def _rss_kb(pid: int) -> int | None:
     return None
 
 
-def measure_segment(recording: Path, out: Path) -> dict:
+def measure_segment(recording: Path, out: Path, flow_method: str = "planefit") -> dict:
     """Run `evseg segment` on ``recording`` in a child; RSS samples (kB) and its peak."""
     cmd = [sys.executable, "-c", "import sys; from evseg.cli import main; sys.exit(main(sys.argv[1:]))",
-           "segment", str(recording), "--out", str(out), "--flow-method", "planefit", "--no-progress"]
+           "segment", str(recording), "--out", str(out), "--flow-method", flow_method, "--no-progress"]
     env = dict(os.environ, OMP_NUM_THREADS="1")
     t0 = time.perf_counter()
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env)
@@ -95,13 +96,14 @@ def measure_segment(recording: Path, out: Path) -> dict:
     return {"wall_s": wall, "peak_kb": int(usage.ru_maxrss), "samples_kb": samples}
 
 
-def _row(duration_s: int, n_events: int, file_mb: float, m: dict) -> dict:
+def _row(flow_method: str, duration_s: int, n_events: int, file_mb: float, m: dict) -> dict:
     s = np.asarray(m["samples_kb"], dtype=np.float64) / 1024
     q = max(1, len(s) // 4)
     # Growth within one run: median RSS of the last quarter minus that of the second quarter
     # (the first quarter holds imports and warm-up).
     growth = float(np.median(s[-q:]) - np.median(s[q : 2 * q])) if len(s) >= 8 else float("nan")
     return {
+        "flow": flow_method,
         "recording_s": duration_s,
         "events": n_events,
         "rate_ev_s": round(n_events / duration_s),
@@ -115,18 +117,20 @@ def _row(duration_s: int, n_events: int, file_mb: float, m: dict) -> dict:
 
 
 def benchmark(repeats: int = 1, quick: bool = False, rate_ev_s: float = 20_000,
-              durations_s: tuple[int, ...] | None = None) -> list[dict]:
-    """Peak RSS of `evseg segment` per recording length (median over ``repeats`` runs)."""
-    if durations_s is None:
-        durations_s = (5, 20) if quick else (10, 60, 600)
+              cases: tuple[tuple[str, int], ...] | None = None) -> list[dict]:
+    """Peak RSS of `evseg segment` per (flow method, recording length in s), median over
+    ``repeats`` runs."""
+    if cases is None:
+        cases = ((("planefit", 5), ("planefit", 20)) if quick else
+                 (("planefit", 10), ("planefit", 60), ("planefit", 600), ("learned", 10), ("learned", 60)))
     tile = tile_events(rate_ev_s)
     rows = []
     with tempfile.TemporaryDirectory(prefix="evseg-memory-") as d:
-        for duration in durations_s:
+        for flow_method, duration in cases:
             rec = Path(d) / f"long_{duration}s.h5"
             n = write_long_recording(rec, tile, duration)
-            runs = [measure_segment(rec, Path(d) / "result.npz") for _ in range(repeats)]
+            runs = [measure_segment(rec, Path(d) / "result.npz", flow_method) for _ in range(repeats)]
             med = sorted(runs, key=lambda m: m["peak_kb"])[len(runs) // 2]
-            rows.append(_row(duration, n, rec.stat().st_size / 2**20, med))
+            rows.append(_row(flow_method, duration, n, rec.stat().st_size / 2**20, med))
             rec.unlink()
     return rows
