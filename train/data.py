@@ -494,6 +494,9 @@ class NormalFlowDataModule(_lightning_datamodule_base()):
             self.val_set = FlowTargetDataset(concat_examples([load_shard(p) for p in build_shards(self._jobs(False), 1)]))
             if len(self.train_set) == 0:
                 raise ConfigError("data: the training scenes produced no target with ground truth")
+            from lightning.pytorch.utilities import rank_zero_info
+
+            rank_zero_info(f"normal-flow data: {len(self.train_set):,} training and {len(self.val_set):,} validation targets")
 
     def _loader(self, ds: FlowTargetDataset, shuffle: bool):
         import torch

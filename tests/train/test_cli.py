@@ -83,3 +83,17 @@ def test_ddp_on_two_cpu_processes(tmp_path, edge_recording):
     assert "All distributed processes registered" in proc.stderr + proc.stdout
     head, _ = load_head_checkpoint(_run_dir(tmp_path) / "checkpoints" / "last.ckpt")
     assert head.hidden == 16
+
+
+def test_shipped_configs_parse(tmp_path):
+    """Both configs are valid LightningCLI configs (a typo would only surface at training time)."""
+    for name in ("default.yaml", "quick.yaml"):
+        cfg = REPO / "configs" / "train" / name
+        proc = subprocess.run(
+            [sys.executable, "-m", "evseg.train", "fit", "--config", str(cfg), "--print_config"],
+            cwd=tmp_path, capture_output=True, text=True, timeout=120,
+        )
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        printed = yaml.safe_load(proc.stdout)
+        assert printed["seed_everything"] == 0
+        assert printed["model"]["encoding"]["polarity"] is True
