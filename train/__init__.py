@@ -6,6 +6,6 @@
 - :mod:`~evseg.train.cli`: LightningCLI (``python -m evseg.train fit --config ...``);
 - :mod:`~evseg.train.evaluate`: flow accuracy on held-out scenes and real recordings.
 
-Lightning is imported only by ``data``'s datamodule, ``module`` and ``cli``: the rest works
-with the core dependencies.
+``data``, ``module`` and ``cli`` import Lightning (the ``train`` extra); ``augment`` and
+``evaluate`` need only the core dependencies.
 """
