@@ -20,8 +20,9 @@ key                 dtype, shape    meaning
 ``config``          str ()          the effective configuration, as YAML
 ==================  ==============  =====================================================
 
-The writer streams ``label`` to a temporary file as windows arrive, so memory stays bounded
-however long the recording; :meth:`ResultWriter.close` assembles the npz next to the target
+The writer streams ``label`` (and ``masks``) to temporary files as windows arrive and keeps
+window times and boxes as packed int64 (48 bytes per box), so memory stays bounded however
+long the recording; :meth:`ResultWriter.close` assembles the npz next to the target
 and renames it into place, so a reader never sees a half-written file.
 """
 
@@ -30,6 +31,7 @@ from __future__ import annotations
 import os
 import tempfile
 import zipfile
+from array import array
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -83,11 +85,17 @@ class ResultWriter:
         fd, name = tempfile.mkstemp(prefix=".labels-", suffix=".bin", dir=self.path.parent)
         self._label_file = os.fdopen(fd, "wb")
         self._label_path = Path(name)
+        self._mask_file = self._mask_path = None
+        if with_masks:  # a dense mask per object and window: on disk, not in memory
+            fd, name = tempfile.mkstemp(prefix=".masks-", suffix=".bin", dir=self.path.parent)
+            self._mask_file, self._mask_path = os.fdopen(fd, "wb"), Path(name)
         self.n_written = 0
-        self._t0: list[int] = []
-        self._t1: list[int] = []
-        self._boxes: list[tuple[int, ...]] = []
-        self._masks: list[np.ndarray] = []
+        # Packed int64 rather than lists of Python ints (~25x smaller): a 10 min recording has
+        # 60 000 windows and a few boxes each.
+        self._t0 = array("q")
+        self._t1 = array("q")
+        self._boxes = array("q")  # 6 values per box
+        self._n_masks = 0
         self._closed = False
 
     def add_labels(self, labels: np.ndarray) -> None:
@@ -113,11 +121,12 @@ class ResultWriter:
         self._t0.append(int(t0_us))
         self._t1.append(int(t1_us))
         for oid in sorted(boxes):
-            self._boxes.append((w, int(oid), *(int(v) for v in boxes[oid])))
             if self.with_masks:
                 if masks is None or oid not in masks:
                     raise ValueError(f"window {w}: no mask for object {oid}")
-                self._masks.append(np.packbits(np.asarray(masks[oid], dtype=bool).ravel()))
+                self._mask_file.write(np.packbits(np.asarray(masks[oid], dtype=bool).ravel()).tobytes())
+                self._n_masks += 1
+            self._boxes.extend((w, int(oid), *(int(v) for v in boxes[oid])))
 
     def close(self, partial: bool = False) -> Path:
         """Write the npz atomically; remaining events get -1. Returns the path."""
@@ -129,28 +138,30 @@ class ResultWriter:
             self.add_unassigned(self.n_events - self.n_written)
         n_total = self.n_written
         self._label_file.close()
+        if self._mask_file is not None:
+            self._mask_file.close()
         try:
             with atomic_path(self.path) as tmp, \
                     zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_STORED, allowZip64=True) as zf:
                 _write_npy_from_file(zf, "label", self._label_path, LABEL_DTYPE, (n_total,))
+                if self.with_masks:
+                    w, h = self.sensor_size
+                    _write_npy_from_file(zf, "masks", self._mask_path, np.dtype(np.uint8),
+                                         (self._n_masks, (w * h + 7) // 8))
                 arrays = {
-                    "window_t0_us": np.asarray(self._t0, dtype=np.int64),
-                    "window_t1_us": np.asarray(self._t1, dtype=np.int64),
-                    "boxes": np.asarray(self._boxes, dtype=np.int64).reshape(-1, 6),
+                    "window_t0_us": np.frombuffer(self._t0, dtype=np.int64),
+                    "window_t1_us": np.frombuffer(self._t1, dtype=np.int64),
+                    "boxes": np.frombuffer(self._boxes, dtype=np.int64).reshape(-1, 6),
                     "sensor_size": np.asarray(self.sensor_size, dtype=np.int64),
                     "partial": np.asarray(bool(partial)),
                     "n_events_processed": np.asarray(n_done, dtype=np.int64),
                     "config": np.asarray(self.config_yaml),
                 }
-                if self.with_masks:
-                    w, h = self.sensor_size
-                    nbytes = (w * h + 7) // 8
-                    arrays["masks"] = np.asarray(self._masks, dtype=np.uint8).reshape(-1, nbytes)
                 for key, arr in arrays.items():
                     with zf.open(f"{key}.npy", "w", force_zip64=True) as f:
                         np.lib.format.write_array(f, arr, allow_pickle=False)
         finally:
-            self._label_path.unlink(missing_ok=True)
+            self._drop_temporaries()
         return self.path
 
     def abort(self) -> None:
@@ -158,7 +169,14 @@ class ResultWriter:
         if not self._closed:
             self._closed = True
             self._label_file.close()
-            self._label_path.unlink(missing_ok=True)
+            if self._mask_file is not None:
+                self._mask_file.close()
+            self._drop_temporaries()
+
+    def _drop_temporaries(self) -> None:
+        self._label_path.unlink(missing_ok=True)
+        if self._mask_path is not None:
+            self._mask_path.unlink(missing_ok=True)
 
     def __enter__(self) -> "ResultWriter":
         return self
