@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from evseg.errors import CalibrationError
+from evseg.errors import CalibrationError, yaml_problem
 
 
 
@@ -127,10 +127,7 @@ def load_calibration(path: str | Path) -> Calibration:
     except FileNotFoundError:
         raise CalibrationError(f"{path}: calibration file not found") from None
     except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
-        problem = getattr(exc, "problem", None) or type(exc).__name__
-        raise CalibrationError(f"{path}: not valid YAML{where}: {problem}") from None
+        raise CalibrationError(f"{path}: {yaml_problem(exc)}") from None
     if not isinstance(doc, dict):
         raise CalibrationError(f"{path}: expected a mapping of calibration fields, got {type(doc).__name__}")
     width = _positive_int(doc, "image_width", path)

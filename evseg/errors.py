@@ -28,3 +28,15 @@ class ConfigError(EvsegError, ValueError):
 
 class ModelError(EvsegError, RuntimeError):
     """A normal-flow model file is missing, corrupt or incompatible."""
+
+
+def yaml_problem(exc: Exception) -> str:
+    """One line describing a YAML parse error: where (line, column) and what.
+
+    PyYAML's own message spans several lines with a source excerpt; the CLI prints one line.
+    """
+    mark = getattr(exc, "problem_mark", None)
+    where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+    first_line = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    problem = getattr(exc, "problem", None) or first_line
+    return f"not valid YAML{where}: {problem}"

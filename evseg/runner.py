@@ -25,6 +25,7 @@ class SegmentJob:
     topic: str | None = None
     sensor_size: str | tuple[int, int] | None = None
     calib: Path | None = None
+    sort: bool = False
     config: str | None = None
     window_ms: float = 10.0
     stride_ms: float | None = None
@@ -93,7 +94,8 @@ def run_segment_job(job: SegmentJob) -> str:
     cfg = build_pipeline_config(job)  # config errors surface before any work
     calibration = load_calibration(job.calib) if job.calib is not None else None
     sensor_size = parse_sensor_size(job.sensor_size) if isinstance(job.sensor_size, str) else job.sensor_size
-    with open_recording(job.recording, format=job.format, topic=job.topic, sensor_size=sensor_size) as rec:
+    with open_recording(job.recording, format=job.format, topic=job.topic, sensor_size=sensor_size,
+                        sort=job.sort) as rec:
         if rec.sensor_size is None:
             raise ConfigError(f"{job.recording}: the file does not give the sensor size; pass --sensor-size WxH")
         if calibration is None:

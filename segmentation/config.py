@@ -23,7 +23,7 @@ import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
-from evseg.errors import ConfigError
+from evseg.errors import ConfigError, yaml_problem
 
 _PRESET_DIR = Path(__file__).resolve().parents[1] / "configs" / "segmentation"
 
@@ -245,5 +245,5 @@ def load_segmentation_config(name_or_path: str | Path) -> SegmentationConfig:
     try:
         data = yaml.safe_load(path.read_text())
     except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML ({exc})") from None
+        raise ConfigError(f"{path}: {yaml_problem(exc)}") from None
     return config_from_dict({} if data is None else data, source=str(path))

@@ -22,6 +22,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--format", default=None, help="override format detection")
     p.add_argument("--topic", default=None, help="ROS bag topic with dvs_msgs/EventArray")
     p.add_argument("--sensor-size", default=None, help="WIDTHxHEIGHT when the file has none")
+    p.add_argument("--sort", action="store_true",
+                   help="sort events by time first (loads the whole recording; for files whose time goes back)")
     p.add_argument("--calib", type=Path, default=None, help="calibration YAML (ROS camera_info style)")
     p.add_argument("--config", default=None, help="segmentation preset name or YAML file")
     p.add_argument("--window-ms", type=float, default=10.0, help="window duration (ms)")
@@ -48,6 +50,7 @@ def run(args: argparse.Namespace) -> int:
         topic=args.topic,
         sensor_size=args.sensor_size,
         calib=args.calib,
+        sort=args.sort,
         config=args.config,
         window_ms=args.window_ms,
         stride_ms=args.stride_ms,

@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from evseg.errors import ConfigError
+from evseg.errors import ConfigError, yaml_problem
 
 Range = tuple[float, float]
 """A closed interval ``(lo, hi)`` sampled uniformly per recording; ``lo == hi`` fixes it."""
@@ -376,5 +376,5 @@ def load_scene_file(path: str | Path) -> SceneConfig:
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
+        raise ConfigError(f"{path}: {yaml_problem(exc)}") from None
     return scene_from_dict(data, source=str(path))

@@ -160,8 +160,6 @@ def test_unknown_preset_and_missing_config_file(tmp_path, capsys, sim_files):
     _segment_fails_cleanly(capsys, tmp_path, recording, ["--config", str(missing)], [str(missing)])
 
 
-@pytest.mark.xfail(strict=True, reason="segmentation/config.py: load_segmentation_config puts the YAML "
-                   "parser's multi-line message into the ConfigError (the scene loader keeps its first line)")
 def test_broken_yaml_segmentation_config_is_one_line(tmp_path, capsys, sim_files):
     _, recording, _ = sim_files
     cfg = tmp_path / "seg.yaml"

@@ -151,8 +151,6 @@ def test_sensor_size_absent(tmp_path, capsys):
     assert len(load_result(out).label) == len(ev)
 
 
-@pytest.mark.xfail(strict=True, reason="the readers' unsorted-time message says 'pass --sort', but `evseg segment` "
-                   "has no --sort option (info and convert have one): the hint cannot be followed")
 def test_unsorted_time_hint_is_an_option_of_segment(tmp_path, capsys):
     rec, _ = _bad_file(tmp_path, "time goes back")
     rc, err = _segment(capsys, rec, tmp_path / "r.npz", "--flow-method", "planefit", "--sensor-size", "32x24")
