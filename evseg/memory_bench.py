@@ -112,6 +112,8 @@ def _row(flow_method: str, duration_s: int, n_events: int, file_mb: float, m: di
         "samples": len(s),
         "peak_rss_mb": m["peak_kb"] / 1024,
         "median_rss_mb": float(np.median(s)) if len(s) else float("nan"),
+        # Median RSS of each quarter of the run: a leak rises steadily, warm-up only at first.
+        "rss_by_quarter_mb": "/".join(f"{np.median(p):.0f}" for p in np.array_split(s, 4) if len(p)),
         "growth_mb": growth,
     }
 
