@@ -60,20 +60,29 @@ def markdown_table(rows: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def resolve_target(kind: str, targets: dict[str, str], name: str):
+    """The function behind ``targets[name]`` ("module:function"), imported on demand."""
+    module, func = targets[name].split(":")
+    try:
+        return getattr(importlib.import_module(module), func)
+    except ModuleNotFoundError as exc:
+        raise EvsegError(f"{kind} '{name}' is not available in this build ({exc})") from None
+
+
+def emit_table(rows: list[dict], out: Path | None) -> None:
+    """Print the machine line and the table; also write them to ``out`` (atomically)."""
+    from evseg.io._atomic import atomic_path
+
+    text = f"{machine_line()}\n\n{markdown_table(rows)}"
+    sys.stdout.write(text)
+    if out is not None:
+        with atomic_path(out) as tmp:
+            tmp.write_text(text)
+
+
 def run(args: argparse.Namespace) -> int:
     if args.repeats < 1:
         raise EvsegError(f"--repeats must be at least 1, got {args.repeats}")
-    module, func = TARGETS[args.target].split(":")
-    try:
-        fn = getattr(importlib.import_module(module), func)
-    except ModuleNotFoundError as exc:
-        raise EvsegError(f"benchmark '{args.target}' is not available in this build ({exc})") from None
-    rows = fn(repeats=args.repeats, quick=args.quick)
-    text = f"{machine_line()}\n\n{markdown_table(rows)}"
-    sys.stdout.write(text)
-    if args.out is not None:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        tmp = args.out.with_suffix(args.out.suffix + ".tmp")
-        tmp.write_text(text)
-        tmp.replace(args.out)
+    fn = resolve_target("benchmark", TARGETS, args.target)
+    emit_table(fn(repeats=args.repeats, quick=args.quick), args.out)
     return 0

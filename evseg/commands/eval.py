@@ -8,12 +8,9 @@ evaluation use seeds >= 1000; training only ever sees seeds < 1000.
 from __future__ import annotations
 
 import argparse
-import importlib
-import sys
 from pathlib import Path
 
-from evseg.commands.bench import machine_line, markdown_table
-from evseg.errors import EvsegError
+from evseg.commands.bench import emit_table, resolve_target
 
 HELP = "evaluate accuracy on held-out simulated scenes and write a markdown table"
 
@@ -33,17 +30,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    module, func = TARGETS[args.target].split(":")
-    try:
-        fn = getattr(importlib.import_module(module), func)
-    except ModuleNotFoundError as exc:
-        raise EvsegError(f"evaluation '{args.target}' is not available in this build ({exc})") from None
-    rows = fn(quick=args.quick)
-    text = f"{machine_line()}\n\n{markdown_table(rows)}"
-    sys.stdout.write(text)
-    if args.out is not None:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        tmp = args.out.with_suffix(args.out.suffix + ".tmp")
-        tmp.write_text(text)
-        tmp.replace(args.out)
+    fn = resolve_target("evaluation", TARGETS, args.target)
+    emit_table(fn(quick=args.quick), args.out)
     return 0
