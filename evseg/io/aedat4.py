@@ -15,7 +15,7 @@ import numpy as np
 
 from evseg.errors import FormatError
 from evseg.events import EVENT_DTYPE
-from evseg.io.recording import Chunk
+from evseg.io.recording import Chunk, batched_chunks
 
 
 def _reraise_interrupts(exc: BaseException) -> None:
@@ -67,8 +67,9 @@ class Aedat4Source:
                 yield packet["events"]
 
     def chunks(self, chunk_events: int) -> Iterator[Chunk]:
-        parts: list[np.ndarray] = []
-        count = 0
+        return batched_chunks(self._events(), chunk_events)
+
+    def _events(self) -> Iterator[np.ndarray]:
         for raw in self._event_packets():
             if len(raw) == 0:
                 continue
@@ -79,13 +80,7 @@ class Aedat4Source:
             ev["t"] = t.astype(np.int64) - self.t_offset_us
             ev["x"], ev["y"] = raw["x"], raw["y"]
             ev["p"] = np.where(raw["on"], 1, -1)
-            parts.append(ev)
-            count += len(ev)
-            if count >= chunk_events:
-                yield Chunk(np.concatenate(parts))
-                parts, count = [], 0
-        if parts:
-            yield Chunk(np.concatenate(parts))
+            yield ev
 
     def close(self) -> None:
         pass

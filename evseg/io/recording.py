@@ -22,7 +22,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable, Iterator, Protocol
+from typing import TYPE_CHECKING, Callable, Iterable, Iterator, Protocol
 
 import numpy as np
 
@@ -210,6 +210,23 @@ class Recording:
 
             cal = Calibration(cal.K, cal.D, self.sensor_size)
         return EventStream(events, self.sensor_size, self.t_offset_us, cal)
+
+
+def batched_chunks(packets: Iterable[np.ndarray], chunk_events: int) -> Iterator[Chunk]:
+    """Join small event packets (one per message / file packet) into chunks of at least
+    ``chunk_events`` events (the last may be smaller); empty packets are skipped."""
+    parts: list[np.ndarray] = []
+    count = 0
+    for ev in packets:
+        if len(ev) == 0:
+            continue
+        parts.append(ev)
+        count += len(ev)
+        if count >= chunk_events:
+            yield Chunk(np.concatenate(parts))
+            parts, count = [], 0
+    if parts:
+        yield Chunk(np.concatenate(parts))
 
 
 def _concat(chunks: list[np.ndarray]) -> np.ndarray:

@@ -22,7 +22,7 @@ import numpy as np
 
 from evseg.errors import FormatError
 from evseg.events import EVENT_DTYPE
-from evseg.io.recording import Chunk
+from evseg.io.recording import Chunk, batched_chunks
 
 EVENT_ARRAY = "dvs_msgs/msg/EventArray"
 
@@ -140,23 +140,16 @@ class RosbagSource:
                 break
 
     def chunks(self, chunk_events: int) -> Iterator[Chunk]:
-        parts: list[np.ndarray] = []
-        count = 0
+        return batched_chunks(self._events(), chunk_events)
+
+    def _events(self) -> Iterator[np.ndarray]:
         for raw in self._messages():
             wire, _, _ = decode_event_array(raw, self._where)
-            if len(wire) == 0:
-                continue
             ev = np.empty(len(wire), dtype=EVENT_DTYPE)
             ev["x"], ev["y"] = wire["x"], wire["y"]
             ev["t"] = wire["sec"].astype(np.int64) * 1_000_000 + wire["nsec"].astype(np.int64) // 1000 - self.t_offset_us
             ev["p"] = np.where(wire["polarity"] > 0, 1, -1)
-            parts.append(ev)
-            count += len(ev)
-            if count >= chunk_events:
-                yield Chunk(np.concatenate(parts))
-                parts, count = [], 0
-        if parts:
-            yield Chunk(np.concatenate(parts))
+            yield ev
 
     def close(self) -> None:
         try:
