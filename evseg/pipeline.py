@@ -109,33 +109,53 @@ class WindowResult:
     timings_ms: dict[str, float] = field(default_factory=dict)
 
 
+@dataclass(frozen=True)
+class UndistortionTable:
+    """Undistorted position and Jacobian of the undistortion for every pixel of the sensor.
+
+    Built once per calibration so that per-window undistortion is a table lookup, not an
+    OpenCV call per event. All arrays are (height, width) float64; ``j11 = d xu / d x``,
+    ``j12 = d xu / d y``, ``j21 = d yu / d x``, ``j22 = d yu / d y`` (central differences).
+    """
+
+    xu: np.ndarray
+    yu: np.ndarray
+    j11: np.ndarray
+    j12: np.ndarray
+    j21: np.ndarray
+    j22: np.ndarray
+
+    @classmethod
+    def from_calibration(cls, calibration: Calibration) -> "UndistortionTable":
+        xu, yu = (m.astype(np.float64) for m in calibration.undistortion_map())
+        dxu_dy, dxu_dx = np.gradient(xu)
+        dyu_dy, dyu_dx = np.gradient(yu)
+        return cls(xu, yu, dxu_dx, dxu_dy, dyu_dx, dyu_dy)
+
+
 def undistort_normal_flow(
-    calibration: Calibration, x: np.ndarray, y: np.ndarray, nx: np.ndarray, ny: np.ndarray, eps_px: float = 0.5
+    table: UndistortionTable, x: np.ndarray, y: np.ndarray, nx: np.ndarray, ny: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Map positions and normal flows (px, px/s) into undistorted pixel coordinates.
+    """Map pixel positions (integer px) and their normal flows (px/s) to undistorted pixels.
 
     With J the local Jacobian of the undistortion and g the unit normal direction, the
     optical flow maps as u' = J u and the gradient direction as g' ~ J^-T g, so the normal
     flow's magnitude along g' is (u . g) / |J^-T g| = |n| / |J^-T g|: computable from n alone.
+
+    Returns ``(xu, yu, nxu, nyu)``: float64 px and float32 px/s.
     """
-    x = np.asarray(x, np.float64)
-    y = np.asarray(y, np.float64)
-    xs = np.concatenate([x, x + eps_px, x, x])
-    ys = np.concatenate([y, y, y + eps_px, y])
-    ux, uy = calibration.undistort(xs, ys)
-    n = len(x)
-    xu, yu = ux[:n], uy[:n]
-    j11, j21 = (ux[n : 2 * n] - xu) / eps_px, (uy[n : 2 * n] - yu) / eps_px
-    j12, j22 = (ux[2 * n : 3 * n] - xu) / eps_px, (uy[2 * n : 3 * n] - yu) / eps_px
+    r = np.asarray(y, dtype=np.int64)
+    c = np.asarray(x, dtype=np.int64)
+    j11, j12, j21, j22 = table.j11[r, c], table.j12[r, c], table.j21[r, c], table.j22[r, c]
     det = j11 * j22 - j12 * j21
     mag = np.hypot(nx, ny)
     gx, gy = nx / np.maximum(mag, 1e-12), ny / np.maximum(mag, 1e-12)
     # J^-T g with J^-1 = [[j22, -j12], [-j21, j11]] / det
     hx = (j22 * gx - j21 * gy) / det
     hy = (-j12 * gx + j11 * gy) / det
-    hn = np.hypot(hx, hy)
-    scale = mag / np.maximum(hn, 1e-12)
-    return xu, yu, (scale * hx / hn).astype(np.float32), (scale * hy / hn).astype(np.float32)
+    hn = np.maximum(np.hypot(hx, hy), 1e-12)
+    scale = mag / hn
+    return table.xu[r, c], table.yu[r, c], (scale * hx / hn).astype(np.float32), (scale * hy / hn).astype(np.float32)
 
 
 class MotionSegmentationPipeline:
@@ -163,6 +183,7 @@ class MotionSegmentationPipeline:
         self.config = config if config.segmentation is not None else replace(config, segmentation=SegmentationConfig())
         self.sensor_size = (int(sensor_size[0]), int(sensor_size[1]))
         self.calibration = calibration
+        self._undistortion = UndistortionTable.from_calibration(calibration) if calibration is not None else None
         self._estimator = None
         self._flow_fn = flow_fn if flow_fn is not None else self._make_flow_fn()
         self.reset()
@@ -219,12 +240,14 @@ class MotionSegmentationPipeline:
         ok = np.isfinite(nx) & np.isfinite(ny) & ((nx != 0) | (ny != 0))
         idx, nx, ny = idx[ok], nx[ok], ny[ok]
         unc = unc[ok] if unc is not None else None
-        fx = ev["x"][idx].astype(np.float64)
-        fy = ev["y"][idx].astype(np.float64)
+        fx = ev["x"][idx]
+        fy = ev["y"][idx]
         ft = ev["t"][idx]
         t0 = time.perf_counter()
-        if self.calibration is not None:
-            fx, fy, nx, ny = undistort_normal_flow(self.calibration, fx, fy, nx, ny)
+        if self._undistortion is not None:
+            fx, fy, nx, ny = undistort_normal_flow(self._undistortion, fx, fy, nx, ny)
+        else:
+            fx, fy = fx.astype(np.float64), fy.astype(np.float64)
         timings["undistort"] = (time.perf_counter() - t0) * 1e3
 
         seg = segment_normal_flow(
@@ -237,9 +260,10 @@ class MotionSegmentationPipeline:
 
         t0 = time.perf_counter()
         mapping = self._tracker.update({int(k): tuple(v) for k, v in seg.boxes.items()})
-        ex, ey = ev["x"].astype(np.float64), ev["y"].astype(np.float64)
-        if self.calibration is not None and len(ev):
-            ex, ey = self.calibration.undistort(ex, ey)
+        if self._undistortion is not None:
+            ex, ey = self._undistortion.xu[ev["y"], ev["x"]], self._undistortion.yu[ev["y"], ev["x"]]
+        else:
+            ex, ey = ev["x"].astype(np.float64), ev["y"].astype(np.float64)
         seg_labels = propagate_labels(seg, ex, ey)  # -1 beyond segmentation.max_propagation_px
         # Per-window labels 1..K -> persistent object ids (0 and -1 unchanged).
         lut = np.arange(-1, seg.n_objects + 1, dtype=np.int64)

@@ -18,6 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
+from evseg.io import open_recording
+from evseg.pipeline import MotionSegmentationPipeline, PipelineConfig
+
 STAGES = ["read", "flow_encode", "flow_network", "flow", "preprocessing", "initialization",
           "labeling_fitting", "propagation", "total"]
 
@@ -37,9 +40,6 @@ def simulated_stream(rate_ev_s: float, duration_us: int, seed: int = 1100):
 
 def time_pipeline(path: Path, repeats: int, flow: str = "learned", threads: int | None = None) -> dict:
     """Per-stage median / p90 ms per window for one recording file."""
-    from evseg.io import open_recording
-    from evseg.pipeline import MotionSegmentationPipeline, PipelineConfig
-
     per_stage: dict[str, list[float]] = {s: [] for s in STAGES}
     n_events = n_windows = 0
     for _ in range(repeats):
@@ -48,7 +48,8 @@ def time_pipeline(path: Path, repeats: int, flow: str = "learned", threads: int 
             chunks = list(rec.chunks())
             read_s = time.perf_counter() - t0
             sensor = rec.sensor_size
-        pipe = MotionSegmentationPipeline(PipelineConfig(flow=flow, threads=threads), sensor_size=sensor)
+        config = PipelineConfig(flow=flow, threads=threads)
+        pipe = MotionSegmentationPipeline(config, sensor_size=sensor)
         results = []
         it = pipe.run(chunks)
         while True:
@@ -68,7 +69,7 @@ def time_pipeline(path: Path, repeats: int, flow: str = "learned", threads: int 
             tm["flow_network"] = tm.get("flow_network", float("nan"))
             for s in STAGES:
                 per_stage[s].append(tm.get(s, 0.0))
-    window_ms = 10.0
+    window_ms = PipelineConfig().window_us / 1e3
     out = {"events/window": n_events / max(n_windows, 1), "windows": n_windows}
     for s in STAGES:
         v = np.asarray(per_stage[s])

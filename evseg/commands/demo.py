@@ -30,7 +30,7 @@ def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from evseg.metrics import summarize
-    from evseg.overlay import VideoSink, label_overlay
+    from evseg.overlay import VideoSink
     from evseg.pipeline import PipelineConfig
     from evseg.pipeline_eval import SEGMENTATION_PRESET, evaluate_recording
     from evseg.segmentation import load_segmentation_config
@@ -52,21 +52,12 @@ def run(args: argparse.Namespace) -> int:
     video = args.out_dir / "segmentation.mp4"
     with VideoSink(video, fps=10) as sink:
         for res in tqdm(ev.results, desc="video", unit="win"):
-            truth = rec.window_truth(res.t0_us, res.t1_us)
-            ours = label_overlay(res.events, res.labels, res.boxes, (w, h), title=f"evseg {res.t0_us / 1e3:.0f} ms")
-            gt = label_overlay(res.events, rec.label[res.first_event: res.first_event + len(res.events)],
-                               truth.boxes, (w, h), title="ground truth")
-            sink.add(np.concatenate([ours, gt], axis=1))
+            sink.add(np.concatenate(_ours_and_truth(rec, res), axis=1))
     # The picture: three windows spread over the run, ours above the truth.
     picks = np.linspace(0, len(ev.results) - 1, 3).round().astype(int)
     tiles = []
     for i in picks:
-        res = ev.results[i]
-        truth = rec.window_truth(res.t0_us, res.t1_us)
-        ours = label_overlay(res.events, res.labels, res.boxes, (w, h), title=f"evseg {res.t0_us / 1e3:.0f} ms")
-        gt = label_overlay(res.events, rec.label[res.first_event: res.first_event + len(res.events)],
-                           truth.boxes, (w, h), title="ground truth")
-        tiles.append(np.concatenate([ours, gt], axis=0))
+        tiles.append(np.concatenate(_ours_and_truth(rec, ev.results[i]), axis=0))
     picture = args.out_dir / "overlay.png"
     cv2.imwrite(str(picture), np.concatenate(tiles, axis=1))
 
@@ -78,3 +69,14 @@ def run(args: argparse.Namespace) -> int:
         f"normal-flow median angular error {ev.flow_median_ae_deg:.1f} deg, {ev.ms_per_window:.1f} ms per window"
     )
     return 0
+
+
+def _ours_and_truth(rec, res):
+    """Overlay pictures of one window: our labels and boxes, and the simulator's."""
+    from evseg.overlay import label_overlay
+
+    size = rec.stream.sensor_size
+    truth = rec.window_truth(res.t0_us, res.t1_us)
+    ours = label_overlay(res.events, res.labels, res.boxes, size, title=f"evseg {res.t0_us / 1e3:.0f} ms")
+    true_labels = rec.label[res.first_event: res.first_event + len(res.events)]
+    return ours, label_overlay(res.events, true_labels, truth.boxes, size, title="ground truth")
