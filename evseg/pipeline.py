@@ -32,7 +32,7 @@ from evseg.calibration import Calibration
 from evseg.errors import ConfigError, EvsegError
 from evseg.events import EventStream
 from evseg.tracking import ObjectTracker
-from evseg.windows import Window, stream_time_windows
+from evseg.windows import EventHistory, Window, stream_time_windows
 
 
 class NormalFlowLike(Protocol):
@@ -59,6 +59,10 @@ class PipelineConfig:
         target_cell_px: normal flow is computed for the latest event of each square cell of
             this side (px); None computes it for every event. The segmentation keeps one node
             per ``segmentation.cell_px`` cell, so cells smaller than that lose nothing.
+        flow_context_us: the events of this span (us) before a window are neighbours of its
+            events in the normal-flow estimate (learned and plane fit; see
+            :mod:`evseg.veckm_flow.context`); they get no flow and no label themselves.
+            0 = each window on its own.
         segmentation: a :class:`evseg.segmentation.SegmentationConfig` (None = defaults).
     """
 
@@ -68,6 +72,7 @@ class PipelineConfig:
     model_path: str | None = None
     threads: int | None = None
     target_cell_px: int | None = 2
+    flow_context_us: int = 10_000
     segmentation: object | None = None
 
     def __post_init__(self) -> None:
@@ -77,6 +82,8 @@ class PipelineConfig:
             raise ConfigError(f"pipeline.window_us must be positive, got {self.window_us}")
         if self.stride_us is not None and int(self.stride_us) <= 0:
             raise ConfigError(f"pipeline.stride_us must be positive, got {self.stride_us}")
+        if int(self.flow_context_us) != self.flow_context_us or self.flow_context_us < 0:
+            raise ConfigError(f"pipeline.flow_context_us must be a non-negative integer (us), got {self.flow_context_us}")
 
 
 @dataclass
@@ -166,7 +173,8 @@ class MotionSegmentationPipeline:
         sensor_size: (width, height) px.
         calibration: optional; positions and flows are undistorted before segmentation.
         flow_fn: override the normal-flow estimator: ``flow_fn(events, sensor_size)`` returning
-            an object with ``index``, ``nx``, ``ny``, ``uncertainty`` (index into ``events``).
+            an object with ``index``, ``nx``, ``ny``, ``uncertainty`` (index into ``events``);
+            it sees the window only (``flow_context_us`` applies to the built-in estimators).
     """
 
     def __init__(
@@ -185,7 +193,10 @@ class MotionSegmentationPipeline:
         self.calibration = calibration
         self._undistortion = UndistortionTable.from_calibration(calibration) if calibration is not None else None
         self._estimator = None
-        self._flow_fn = flow_fn if flow_fn is not None else self._make_flow_fn()
+        if flow_fn is not None:
+            self._flow_fn = lambda events, sensor_size, context: flow_fn(events, sensor_size)
+        else:
+            self._flow_fn = self._make_flow_fn()
         self.reset()
 
     def reset(self) -> None:
@@ -198,6 +209,7 @@ class MotionSegmentationPipeline:
         if cfg.flow == "precomputed":
             return None
         from evseg.veckm_flow import select_targets
+        from evseg.veckm_flow.context import flow_with_context
 
         if cfg.flow == "planefit":
             from evseg.veckm_flow import PlaneFitNormalFlow
@@ -209,16 +221,20 @@ class MotionSegmentationPipeline:
             est = OnnxNormalFlow(model_path=cfg.model_path, threads=cfg.threads)
         self._estimator = est
 
-        def flow_fn(events: np.ndarray, sensor_size: tuple[int, int]):
+        def flow_fn(events: np.ndarray, sensor_size: tuple[int, int], context: np.ndarray | None):
             targets = select_targets(events, sensor_size, cell_px=cfg.target_cell_px)
             # Flow is estimated in raw sensor pixels; undistortion happens after (process()).
-            return est(events, sensor_size, targets)
+            return flow_with_context(est, events, sensor_size, targets, context)
 
         return flow_fn
 
     # ------------------------------------------------------------------ one window
-    def process(self, window: Window, flow: NormalFlowLike | None = None) -> WindowResult:
-        """Segment one window. ``flow`` (indices into ``window.events``) overrides the estimator."""
+    def process(
+        self, window: Window, flow: NormalFlowLike | None = None, context: np.ndarray | None = None
+    ) -> WindowResult:
+        """Segment one window. ``flow`` (indices into ``window.events``) overrides the estimator;
+        ``context``: the events just before the window (``flow_context_us``; :meth:`run`
+        supplies them), neighbours for the normal flow only."""
         from evseg.segmentation import propagate_labels, segment_normal_flow
 
         timings: dict[str, float] = {}
@@ -227,7 +243,7 @@ class MotionSegmentationPipeline:
         if flow is None:
             if self._flow_fn is None:
                 raise EvsegError("pipeline.flow is 'precomputed' but no flow was given for this window")
-            flow = self._flow_fn(ev, self.sensor_size)
+            flow = self._flow_fn(ev, self.sensor_size, context)
             split = getattr(self._estimator, "last_timing_s", None) or {}
             for part, seconds in split.items():  # e.g. encode / network of the learned flow
                 timings[f"flow_{part}"] = seconds * 1e3
@@ -307,11 +323,15 @@ class MotionSegmentationPipeline:
         """
         chunks = [source.events] if isinstance(source, EventStream) else source
         cfg = self.config
+        needs_context = precomputed_flow is None and cfg.flow != "precomputed"
+        history = EventHistory(int(cfg.flow_context_us) if needs_context else 0)
         for window in stream_time_windows(chunks, cfg.window_us, cfg.stride_us):
             flow = None
             if precomputed_flow is not None:
                 flow = _slice_flow(precomputed_flow, window.first_event, len(window.events))
-            yield self.process(window, flow)
+            result = self.process(window, flow, context=history.before(window))
+            history.add(window)
+            yield result
 
 
 @dataclass

@@ -29,6 +29,7 @@ class SegmentJob:
     config: str | None = None
     window_ms: float = 10.0
     stride_ms: float | None = None
+    flow_context_ms: float = 10.0
     flow_file: Path | None = None
     flow_method: str = "learned"
     model: Path | None = None
@@ -46,10 +47,13 @@ def build_pipeline_config(job: SegmentJob):
 
     if job.window_ms <= 0:
         raise ConfigError(f"--window-ms must be positive, got {job.window_ms}")
+    if not job.flow_context_ms >= 0:
+        raise ConfigError(f"--flow-context-ms must be >= 0, got {job.flow_context_ms}")
     seg = load_segmentation_config(job.config) if job.config else SegmentationConfig()
     return PipelineConfig(
         window_us=int(round(job.window_ms * 1000)),
         stride_us=None if job.stride_ms is None else int(round(job.stride_ms * 1000)),
+        flow_context_us=int(round(job.flow_context_ms * 1000)),
         flow="precomputed" if job.flow_file is not None else job.flow_method,
         model_path=None if job.model is None else str(job.model),
         threads=job.threads,

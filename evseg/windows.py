@@ -138,3 +138,54 @@ def _cut(buf: np.ndarray, buf_first: int, index: int, t0: int, window_us: int) -
     i0 = int(np.searchsorted(buf["t"], t0, side="left"))
     i1 = int(np.searchsorted(buf["t"], t0 + window_us, side="left"))
     return Window(index, t0, t0 + window_us, buf[i0:i1], buf_first + i0)
+
+
+class EventHistory:
+    """The events just before each window of a stream, kept for the windows that follow.
+
+    The normal flow of an event at the start of a window depends on where its edge was a few
+    milliseconds earlier, i.e. on events of the previous window: an estimator that only sees
+    the window itself has one-sided neighbourhoods there and almost none on slow scenes.
+    ``EventHistory`` keeps the last ``duration_us`` of the stream so that each window can be
+    given that context (``before``), then learns the window (``add``). Memory: one context
+    span of events. Works with overlapping windows (events are never duplicated) and with gaps
+    between windows (stride > duration), where the events of the gaps, never read, are no
+    context either.
+
+    >>> import numpy as np
+    >>> from evseg.events import make_events
+    >>> ev = make_events(np.zeros(4), np.zeros(4), np.array([0, 5, 12, 18]), np.ones(4))
+    >>> hist = EventHistory(10)
+    >>> hist.add(Window(0, 0, 10, ev[:2], 0))
+    >>> hist.before(Window(1, 10, 20, ev[2:], 2))["t"].tolist()
+    [0, 5]
+    """
+
+    def __init__(self, duration_us: int) -> None:
+        if int(duration_us) != duration_us or duration_us < 0:
+            raise ValueError(f"context duration must be a non-negative integer (us), got {duration_us!r}")
+        self.duration_us = int(duration_us)
+        self._events = np.empty(0, dtype=EVENT_DTYPE)
+        self._end_us: int | None = None  # every event before this time has been added
+
+    def before(self, window: Window) -> np.ndarray:
+        """Events with ``window.t0_us - duration_us <= t < window.t0_us`` (sorted by t)."""
+        if self.duration_us == 0 or len(self._events) == 0:
+            return self._events[:0]
+        t = self._events["t"]
+        a, b = np.searchsorted(t, [window.t0_us - self.duration_us, window.t0_us], side="left")
+        return self._events[a:b]
+
+    def add(self, window: Window) -> None:
+        """Remember the events of ``window`` (those not already added) and forget what no
+        later window can need (windows start at increasing times)."""
+        ev = window.events
+        if self._end_us is not None and len(ev):
+            ev = ev[np.searchsorted(ev["t"], self._end_us, side="left"):]
+        if self.duration_us == 0:
+            self._end_us = window.t1_us
+            return
+        keep_from = window.t0_us - self.duration_us
+        old = self._events[np.searchsorted(self._events["t"], keep_from, side="left"):]
+        self._events = np.concatenate([old, ev]) if len(old) else np.array(ev, copy=True)
+        self._end_us = window.t1_us if self._end_us is None else max(self._end_us, window.t1_us)

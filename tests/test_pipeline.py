@@ -139,3 +139,24 @@ def test_calibrated_pipeline_labels_every_window(sim):
     results = list(pipe.run(rec.stream, precomputed_flow=flow))
     assert sum(len(r.labels) for r in results) == len(rec.stream)
     assert all((r.labels >= 0).mean() > 0.5 for r in results)  # most events near a node
+
+
+def test_learned_pipeline_flow_equals_the_flow_command_with_context(sim, tmp_path):
+    """`evseg flow` (10 ms slices, 10 ms context: the defaults) computes exactly the flows the
+    learned pipeline uses, so `evseg flow` + `evseg segment --flow` is the same system; and the
+    context changes the flows of later windows (it is really used)."""
+    rec, d = sim
+    out = tmp_path / "flow.npz"
+    assert main(["flow", str(d / "sim.npz"), "--out", str(out), "--no-progress"]) == 0
+    z = np.load(out)
+    results = {}
+    for context_us in (10_000, 0):
+        pipe = MotionSegmentationPipeline(PipelineConfig(flow_context_us=context_us), sensor_size=rec.stream.sensor_size)
+        results[context_us] = list(pipe.run(rec.stream))
+    idx = np.concatenate([r.flow_index + r.first_event for r in results[10_000]])
+    flow = np.concatenate([r.flow for r in results[10_000]])
+    np.testing.assert_array_equal(idx, z["index"])
+    np.testing.assert_allclose(flow, np.stack([z["nx"], z["ny"]], 1), rtol=1e-5, atol=1e-3)
+    first = results[0][0].flow, results[10_000][0].flow  # no events before the first window
+    np.testing.assert_array_equal(*first)
+    assert not np.allclose(results[0][2].flow, results[10_000][2].flow)

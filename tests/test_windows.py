@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from evseg.events import make_events
-from evseg.windows import count_window_slices, stream_time_windows, time_window_slices
+from evseg.windows import EventHistory, count_window_slices, stream_time_windows, time_window_slices
 
 
 def _events(t):
@@ -47,3 +47,29 @@ def test_streamed_windows_keep_gaps_as_empty_windows():
     wins = list(stream_time_windows([ev], 10_000))
     assert [len(w.events) for w in wins] == [2, 0, 0, 0, 0, 1]
     assert [w.t0_us for w in wins] == [0, 10_000, 20_000, 30_000, 40_000, 50_000]
+
+
+@pytest.mark.parametrize("stride", [10, 4, 25])
+def test_event_history_gives_exactly_the_events_before_each_window(stride):
+    """Back to back, overlapping and gapped windows: the context of a window is every event
+    of the earlier windows with t0 - C <= t < t0, each once (events in gaps between windows
+    are never read, so they are no context either)."""
+    rng = np.random.default_rng(3)
+    ev = _events(np.sort(rng.integers(0, 200, 300)))
+    hist = EventHistory(15)
+    for w in stream_time_windows([ev[:90], ev[90:]], 10, stride):
+        ctx = hist.before(w)
+        in_a_window = (ev["t"] - int(ev["t"][0])) % stride < 10
+        expected = ev[(ev["t"] >= w.t0_us - 15) & (ev["t"] < w.t0_us) & in_a_window]
+        np.testing.assert_array_equal(ctx, expected)
+        hist.add(w)
+
+
+def test_event_history_of_zero_keeps_nothing():
+    ev = _events([0, 5, 12])
+    hist = EventHistory(0)
+    for w in stream_time_windows([ev], 10):
+        assert len(hist.before(w)) == 0
+        hist.add(w)
+    with pytest.raises(ValueError, match="context duration"):
+        EventHistory(-1)

@@ -1,7 +1,8 @@
 """Accuracy of the learned normal flow: held-out simulated scenes and real recordings.
 
 Simulated (:func:`evaluate_flow`, ``evseg eval flow``): every simulator preset, seeds >= 1000
-(never used in training), cut into back-to-back slices of ``slice_us`` (the pipeline's window).
+(never used in training), cut into back-to-back slices of ``slice_us`` (the pipeline's window),
+each with the ``context_us`` of events before it as extra neighbours (as the pipeline does).
 Targets are chosen as ``evseg flow`` chooses them (:func:`~evseg.veckm_flow.select_targets`,
 latest event per ``cell_px`` cell) among events with ground-truth normal flow (noise events and
 flat-gradient pixels have none). The learned model (:class:`~evseg.veckm_flow.OnnxNormalFlow`,
@@ -53,6 +54,8 @@ class FlowEvalConfig:
         seeds: scene seeds per preset (all >= 1000: held out from training).
         duration_us: simulated duration per scene, microseconds.
         slice_us: slice duration, microseconds (the pipeline's 10 ms window).
+        context_us: events of this span before a slice are neighbours of its targets too,
+            for both estimators (the pipeline's ``flow_context_us``).
         cell_px: target selection cell, px (as ``evseg flow``).
         max_targets_per_slice: uniform subsample per slice (bounds the run time).
         drop_fraction: share of most uncertain learned flows dropped for ``ae_learned_keep80``.
@@ -62,6 +65,7 @@ class FlowEvalConfig:
     seeds: tuple[int, ...] = (1000, 1001, 1002, 1003)
     duration_us: int = 200_000
     slice_us: int = 10_000
+    context_us: int = 10_000
     cell_px: int = 2
     max_targets_per_slice: int = 2000
     drop_fraction: float = 0.2
@@ -150,8 +154,12 @@ Estimator = Callable[..., object]
 """``est(events, sensor_size, targets) -> NormalFlow`` (index, nx, ny, uncertainty)."""
 
 
-def _flows(est: Estimator, events: np.ndarray, sensor_size, targets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    res = est(events, sensor_size, targets)
+def _flows(
+    est: Estimator, events: np.ndarray, sensor_size, targets: np.ndarray, context: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    from evseg.veckm_flow.context import flow_with_context
+
+    res = flow_with_context(est, events, sensor_size, targets, context)
     if not np.array_equal(np.asarray(res.index), targets):
         raise RuntimeError("estimator returned flows for other events than the targets it was given")
     return np.stack([res.nx, res.ny], axis=1).astype(np.float64), np.asarray(res.uncertainty, np.float64)
@@ -181,8 +189,9 @@ def collect_scene(rec, learned: Estimator, baseline: Estimator, cfg: FlowEvalCon
             idx = np.sort(rng.choice(idx, cfg.max_targets_per_slice, replace=False))
         if len(idx) == 0:
             continue
-        p, unc = _flows(learned, e, sensor, idx)
-        bflow, _ = _flows(baseline, e, sensor, idx)
+        context = ev[np.searchsorted(t, t0 - cfg.context_us) : a] if cfg.context_us > 0 else None
+        p, unc = _flows(learned, e, sensor, idx, context)
+        bflow, _ = _flows(baseline, e, sensor, idx, context)
         out.learned.append(p)
         out.uncertainty.append(unc)
         out.baseline.append(bflow)

@@ -34,7 +34,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--model", type=Path, default=None, help="ONNX normal-flow model (default: the shipped one)")
     p.add_argument("--baseline", action="store_true", help="use the plane-fit baseline instead of the model")
     p.add_argument("--calib", type=Path, default=None, help="calibration YAML (default: the file's own, if any)")
-    p.add_argument("--window-ms", type=float, default=20.0, help="slice duration (ms); neighbours come from the same slice")
+    p.add_argument("--window-ms", type=float, default=10.0, help="slice duration (ms): the targets of one slice")
+    p.add_argument("--context-ms", type=float, default=10.0,
+                   help="events of this span (ms) before a slice are neighbours of its targets too (0: the slice only)")
     p.add_argument("--targets", choices=["cell", "all"], default="cell", help="which events get a flow")
     p.add_argument("--cell-px", type=int, default=2, help="cell side (px) for --targets cell")
     p.add_argument("--threads", type=int, default=None, help="threads of the encoder and network (default: all cores)")
@@ -68,10 +70,13 @@ def run(args: argparse.Namespace) -> int:
     from evseg.io import open_recording, parse_sensor_size
     from evseg.io._atomic import atomic_path
     from evseg.veckm_flow import NormalFlow, select_targets
-    from evseg.windows import stream_time_windows
+    from evseg.veckm_flow.context import flow_with_context
+    from evseg.windows import EventHistory, stream_time_windows
 
     if args.window_ms <= 0:
         raise EvsegError(f"--window-ms must be positive, got {args.window_ms}")
+    if not args.context_ms >= 0:
+        raise EvsegError(f"--context-ms must be >= 0, got {args.context_ms}")
     if args.cell_px < 1:
         raise EvsegError(f"--cell-px must be at least 1, got {args.cell_px}")
     window_us = max(1, int(round(args.window_ms * 1000)))
@@ -100,20 +105,27 @@ def run(args: argparse.Namespace) -> int:
 
             windows = tqdm(windows, desc="normal flow", unit="slice", file=sys.stderr)
         n_events = 0
+        history = EventHistory(int(round(args.context_ms * 1000)))
         for win in windows:
             ev = win.events
             n_events += len(ev)
+            context = history.before(win)
+            history.add(win)
             if len(ev) == 0:
                 continue
-            targets = None if args.targets == "all" else select_targets(ev, sensor_size, cell_px=args.cell_px)
-            flow = est(ev, sensor_size, targets, calibration)
+            if args.targets == "all":
+                targets = np.arange(len(ev), dtype=np.int64)
+            else:
+                targets = select_targets(ev, sensor_size, cell_px=args.cell_px)
+            flow = flow_with_context(est, ev, sensor_size, targets, context, calibration)
             parts.append(flow.shifted(win.first_event))
             if args.video is not None:
                 frames.append((ev[flow.index], flow))
     flow = NormalFlow.concatenate(parts)
     elapsed = time.perf_counter() - t_start
     info.update(
-        {"recording": str(args.recording), "window_us": window_us, "targets": args.targets,
+        {"recording": str(args.recording), "window_us": window_us,
+         "context_us": int(round(args.context_ms * 1000)), "targets": args.targets,
          "cell_px": args.cell_px if args.targets == "cell" else None,
          "calibration": str(args.calib) if args.calib else ("file" if calibration is not None else None)}
     )

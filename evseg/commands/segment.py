@@ -28,6 +28,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", default=None, help="segmentation preset name or YAML file")
     p.add_argument("--window-ms", type=float, default=10.0, help="window duration (ms)")
     p.add_argument("--stride-ms", type=float, default=None, help="time between windows (ms); default = window")
+    p.add_argument("--flow-context-ms", type=float, default=10.0,
+                   help="events of this span (ms) before a window are neighbours in its normal flow estimate")
     p.add_argument("--flow", type=Path, default=None,
                    help="precomputed normal flow (.npz with index, nx, ny [px/s], optional uncertainty)")
     p.add_argument("--flow-method", choices=["learned", "planefit"], default="learned",
@@ -54,6 +56,7 @@ def run(args: argparse.Namespace) -> int:
         config=args.config,
         window_ms=args.window_ms,
         stride_ms=args.stride_ms,
+        flow_context_ms=args.flow_context_ms,
         flow_file=args.flow,
         flow_method=args.flow_method,
         model=args.model,

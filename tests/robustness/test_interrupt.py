@@ -37,10 +37,10 @@ def full_run(sim_files, tmp_path_factory):
 def _fail_after(monkeypatch, n: int, exc: BaseException) -> None:
     original = MotionSegmentationPipeline.process
 
-    def process(self, window, flow=None):
+    def process(self, window, flow=None, context=None):
         if window.index == n:
             raise exc
-        return original(self, window, flow)
+        return original(self, window, flow, context)
 
     monkeypatch.setattr(MotionSegmentationPipeline, "process", process)
 
@@ -100,11 +100,11 @@ CHILD = textwrap.dedent("""
     import sys, time
     import evseg.pipeline as p
     original = p.MotionSegmentationPipeline.process
-    def process(self, window, flow=None):
+    def process(self, window, flow=None, context=None):
         if window.index == {n}:
             print("ready", flush=True)
             time.sleep(60)  # Ctrl-C arrives here
-        return original(self, window, flow)
+        return original(self, window, flow, context)
     p.MotionSegmentationPipeline.process = process
     from evseg.cli import main
     sys.exit(main(sys.argv[1:]))

@@ -6,6 +6,7 @@ import pytest
 
 from evseg.cli import main
 from evseg.veckm_flow import OnnxNormalFlow, select_targets
+from evseg.veckm_flow.context import flow_with_context
 from evseg.veckm_flow.synthetic import translating_edges
 from evseg.windows import time_window_slices
 
@@ -21,22 +22,29 @@ def recording(tmp_path_factory):
     return path, ev
 
 
-def test_flow_writes_documented_schema_with_recording_indices(recording, random_onnx, tmp_path, capsys):
+@pytest.mark.parametrize("context_ms", [0, 10])
+def test_flow_writes_documented_schema_with_recording_indices(recording, random_onnx, tmp_path, capsys, context_ms):
     path, ev = recording
     model, _, cfg = random_onnx
     out = tmp_path / "flow.npz"
-    assert main(["flow", str(path), "--out", str(out), "--model", str(model), "--window-ms", "20", "--no-progress"]) == 0
+    args = ["--window-ms", "20", "--context-ms", str(context_ms), "--no-progress"]
+    assert main(["flow", str(path), "--out", str(out), "--model", str(model), *args]) == 0
     z = np.load(out)
     assert {"index", "nx", "ny", "uncertainty", "sensor_size"} <= set(z.files)
     assert z["index"].dtype == np.int64 and z["nx"].dtype == np.float32 and z["uncertainty"].dtype == np.float32
     np.testing.assert_array_equal(z["sensor_size"], [80, 60])
     assert json.loads(str(z["config"]))["encoding"] == cfg.to_dict()
-    # Recompute slice by slice with the API: same targets (as recording positions) and flows.
+    assert json.loads(str(z["config"]))["context_us"] == context_ms * 1000
+    # Recompute slice by slice with the API: same targets (as recording positions) and flows;
+    # the events of the context_ms before a slice are neighbours (and only neighbours).
     est = OnnxNormalFlow(model)
     idx, nx = [], []
     for sl in time_window_slices(ev["t"], 20_000):
         w = ev[sl]
-        f = est(w, (80, 60), select_targets(w, (80, 60), cell_px=2))
+        t0 = int(ev["t"][0]) + 20_000 * len(idx)
+        context = ev[np.searchsorted(ev["t"], t0 - context_ms * 1000) : sl.start]
+        assert context_ms or len(context) == 0
+        f = flow_with_context(est, w, (80, 60), select_targets(w, (80, 60), cell_px=2), context)
         idx.append(f.index + sl.start)
         nx.append(f.nx)
     np.testing.assert_array_equal(z["index"], np.concatenate(idx))
@@ -56,7 +64,7 @@ def test_flow_baseline_all_targets_and_video(recording, tmp_path):
     n_frames = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
     ok, frame = cap.read()
     cap.release()
-    assert ok and n_frames == 3  # 50 ms in 20 ms slices
+    assert ok and n_frames == 5  # 50 ms in 10 ms slices (the default)
     assert frame.shape[0] >= 360  # small sensors are enlarged
 
 
