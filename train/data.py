@@ -69,12 +69,17 @@ class SliceSpec:
         targets: keyword arguments of :func:`evseg.veckm_flow.select_targets`, or a list of
             such dicts of which one is drawn per slice (e.g. latest event per 2 px cell, as
             ``evseg flow`` selects, and all events, as the pipeline's estimator sees them).
+        target_us: targets are chosen among the events of the last ``target_us`` of the
+            slice only (after augmentation); the earlier events are neighbours only. This is
+            how the pipeline sees a window: its events plus ``flow_context_us`` of events
+            before it (:mod:`evseg.veckm_flow.context`). None: targets anywhere in the slice.
     """
 
     slice_us: tuple[int, int] = (10_000, 20_000)
     slices_per_scene: int = 8
     max_targets_per_slice: int = 2048
     targets: dict[str, Any] | list[dict[str, Any]] | None = None
+    target_us: int | None = None
 
 
 @dataclass(frozen=True)
@@ -169,7 +174,10 @@ def slice_examples(
     choice = spec.targets or {}
     if isinstance(choice, (list, tuple)):
         choice = choice[int(rng.integers(len(choice)))] if choice else {}
-    idx = np.asarray(select_targets(s.events, s.sensor_size, **choice), dtype=np.int64)
+    first = 0
+    if spec.target_us is not None and len(s):
+        first = int(np.searchsorted(s.events["t"], int(s.events["t"][-1]) - int(spec.target_us), side="left"))
+    idx = first + np.asarray(select_targets(s.events[first:], s.sensor_size, **choice), dtype=np.int64)
     n = len(s)
     nf = s.normal_flow if s.normal_flow is not None else np.full((n, 2), np.nan, np.float32)
     of = s.optical_flow if s.optical_flow is not None else np.full((n, 2), np.nan, np.float32)

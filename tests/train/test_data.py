@@ -81,6 +81,20 @@ def test_examples_skip_targets_without_ground_truth(edge_recording):
     assert np.isfinite(ex["optical_flow"]).all() and np.isnan(ex["normal_flow"]).all()
 
 
+def test_targets_come_from_the_last_target_us_only(edge_recording):
+    """With target_us, earlier events are neighbours only (the pipeline's context): mark each
+    event's flow with its time and check that every target lies in the slice's tail."""
+    rec = load_flow_recording(edge_recording)
+    t = rec.events["t"]
+    of = np.stack([t.astype(np.float32), np.ones(len(t), np.float32)], 1)
+    s = FlowSlice(rec.events, rec.sensor_size, None, of)
+    spec = SliceSpec(max_targets_per_slice=10**6, targets={"cell_px": None}, target_us=3_000)
+    ex = slice_examples(s, {}, spec, np.random.default_rng(0))
+    tail = t >= t[-1] - 3_000
+    assert 0 < len(ex["features"]) == tail.sum() < len(t)
+    np.testing.assert_array_equal(ex["optical_flow"][:, 0], t[tail])
+
+
 def test_examples_are_deterministic_per_seed(edge_recording):
     rec = load_flow_recording(edge_recording)
     a = recording_examples(rec, "edge", 0, {}, SMALL, AugmentConfig())

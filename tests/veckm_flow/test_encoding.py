@@ -73,6 +73,27 @@ def test_matrix_is_seeded():
     assert a.shape == (3, 8) and not np.allclose(a, c)
 
 
+def test_time_octaves_spread_only_the_time_row():
+    """t_octaves scales the time entries by 2**(o t_octaves), o in [0, 1], and nothing else;
+    0 gives exactly the old matrix (models exported before the field keep their meaning)."""
+    base = encoding_matrix(EncodingConfig(d=64, seed=4, polarity=True))
+    spread = encoding_matrix(EncodingConfig(d=64, seed=4, polarity=True, t_octaves=2.0))
+    np.testing.assert_array_equal(base[[0, 1, 3]], spread[[0, 1, 3]])
+    ratio = spread[2] / base[2]
+    assert ratio.min() >= 1.0 and ratio.max() <= 4.0 and ratio.max() > 3.0 and ratio.min() < 1.2
+    np.testing.assert_array_equal(encoding_matrix(EncodingConfig(d=64, seed=4, polarity=True, t_octaves=0.0)), base)
+    with pytest.raises(ConfigError, match="t_octaves"):
+        EncodingConfig(t_octaves=-1)
+
+
+def test_fast_encoding_with_time_octaves_matches_direct_window_sum(make_slice):
+    cfg = EncodingConfig(d=8, window_px=3, seed=2, t_octaves=3.0, polarity=True)
+    ev = make_slice(2000, (40, 30), seed=5)
+    targets = np.arange(0, 2000, 7)
+    np.testing.assert_allclose(encode_targets(ev, targets, (40, 30), cfg),
+                               encode_targets_reference(ev, targets, (40, 30), cfg), atol=ATOL)
+
+
 def test_config_validation_and_roundtrip():
     cfg = EncodingConfig(d=24, window_px=5, alpha=3.0, xy_scale_px=8.0, t_scale_us=2000.0, seed=7)
     assert EncodingConfig.from_dict(cfg.to_dict()) == cfg
