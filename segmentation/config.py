@@ -31,6 +31,7 @@ ROBUST_LOSSES = ("none", "huber", "cauchy", "truncated")
 MASK_METHODS = ("hull", "dilate")
 POTTS_WEIGHTINGS = ("uniform", "distance")
 SAMPLING_FLOWS = ("local", "normal")
+UNCERTAINTY_USES = ("confidence", "scale", "ignore")
 
 
 @dataclass(frozen=True)
@@ -52,9 +53,19 @@ class SegmentationConfig:
     """Flows slower than this (px/s) carry no usable direction and are dropped."""
     max_uncertainty: float | None = None
     """Flows with uncertainty above this are dropped (VecKM_flow uses 0.3 rad); None keeps all."""
+    uncertainty_use: str = "scale"
+    """How a flow's uncertainty enters the energy. 'confidence': the node's data term and
+    fitting weight are multiplied by c = 1 / (1 + (uncertainty / uncertainty_scale)^2).
+    'scale': the node's residual scale grows with the expected error of its flow,
+    sigma_k = sqrt(sigma^2 + (uncertainty_gain * |n_k| * uncertainty_k)^2) (uncertainty an
+    angular error in rad, as the shipped model predicts; |n| tan(err) ~ |n| err is the error it
+    causes along the normal), and its fitting weight is (sigma / sigma_k)^2: an uncertain flow
+    tolerates a larger residual but a gross outlier still costs tau^2, so fast objects, whose
+    flows are the least certain, keep their pull. 'ignore': every node counts alike."""
     uncertainty_scale: float = 0.3
-    """Node confidence c = 1 / (1 + (uncertainty / uncertainty_scale)^2) (same unit as the
-    uncertainty); it weighs the node's data term and its fitting weight."""
+    """'confidence' mode: the uncertainty (same unit) at which the confidence is 1/2."""
+    uncertainty_gain: float = 1.0
+    """'scale' mode: multiplier of |n| * uncertainty in the node's residual scale."""
     origin_px: tuple[float, float] | None = None
     """Origin (column, row) in px of the affine model's x; None = sensor centre
     ((w-1)/2, (h-1)/2) when the sensor size is known, else (0, 0)."""
@@ -150,8 +161,10 @@ class SegmentationConfig:
         _check_choice("mask_method", self.mask_method, MASK_METHODS)
         _check_choice("potts_weighting", self.potts_weighting, POTTS_WEIGHTINGS)
         _check_choice("sampling_flow", self.sampling_flow, SAMPLING_FLOWS)
+        _check_choice("uncertainty_use", self.uncertainty_use, UNCERTAINTY_USES)
         for name in ("n_resampled", "cell_px", "min_flow_px_s", "residual_scale_px_s", "residual_scale_rel",
-                     "lambda_p", "lambda_m", "lm_damping", "mask_dilate_px", "merge_tol", "split_gap_px"):
+                     "lambda_p", "lambda_m", "lm_damping", "mask_dilate_px", "merge_tol", "split_gap_px",
+                     "uncertainty_gain"):
             if getattr(self, name) < 0:
                 raise ConfigError(f"SegmentationConfig.{name} must be >= 0, got {getattr(self, name)}")
         for name in ("truncation", "uncertainty_scale", "sampling_bin", "max_object_extent", "edge_scale_px", "robust_scale",

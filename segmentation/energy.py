@@ -28,14 +28,20 @@ def data_costs(
     sigma_px_s: float,
     truncation: float,
     confidence: np.ndarray | None = None,
+    node_scale: np.ndarray | None = None,
 ) -> np.ndarray:
     """Truncated squared normalised residuals, (M, L), dimensionless (units of sigma^2).
 
     Args:
         models: (L, 4). x, y: (M,) px from the origin. nx, ny: (M,) px/s.
         sigma_px_s: residual scale. truncation: tau (in sigma). confidence: (M,) or None.
+        node_scale: (M,) >= 1 or None: node k's residual scale is ``sigma_px_s * node_scale[k]``
+            (a flow known to be less accurate tolerates a larger residual, but an outlier
+            still costs tau^2).
     """
     r = normal_flow_residuals(models, x, y, nx, ny) / sigma_px_s
+    if node_scale is not None:
+        r /= np.asarray(node_scale, dtype=np.float64)[:, None]
     d = np.minimum(r * r, truncation * truncation)
     if confidence is not None:
         d *= np.asarray(confidence, dtype=np.float64)[:, None]

@@ -143,6 +143,21 @@ def _validate(x, y, t, nx, ny, uncertainty):
     return arrays
 
 
+def _uncertainty_terms(
+    cfg: SegmentationConfig, graph, uncertainty: np.ndarray | None, sigma: float
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Per-node data-term confidence (M,) and residual scale factor (M,) >= 1 or None, from the
+    flows' uncertainty as ``cfg.uncertainty_use`` says (see :class:`SegmentationConfig`)."""
+    m = len(graph)
+    if uncertainty is None or cfg.uncertainty_use == "ignore":
+        return np.ones(m), None
+    if cfg.uncertainty_use == "confidence":
+        return graph.confidence, None
+    u = np.asarray(uncertainty, dtype=np.float64)[graph.index]
+    spread = cfg.uncertainty_gain * np.hypot(graph.nx, graph.ny) * np.nan_to_num(u, nan=0.0, posinf=1e6)
+    return np.ones(m), np.sqrt(1.0 + (spread / sigma) ** 2)
+
+
 def _origin(config: SegmentationConfig, sensor_size) -> tuple[float, float]:
     if config.origin_px is not None:
         return config.origin_px
@@ -197,7 +212,7 @@ def segment_normal_flow(
     # Each node's vote for fast sampling: its 1-ring translation ('local', well-conditioned
     # rings only) or its normal flow ('normal').
     vote_x, vote_y, voting = graph.nx, graph.ny, np.ones(m, dtype=bool)
-    conf = graph.confidence
+    conf, node_scale = _uncertainty_terms(cfg, graph, a.get("uncertainty"), sigma)
     if cfg.sampling_flow == "local" and m:
         vote_x, vote_y, ring_ok = local_translations(graph.nx, graph.ny, graph.edges, sigma)
         # Every node votes when no 1-ring is well conditioned (e.g. one straight edge).
@@ -209,11 +224,14 @@ def segment_normal_flow(
             norm = np.hypot(graph.nx, graph.ny)
             r_self = (graph.nx * vote_x + graph.ny * vote_y) / norm - norm
             agree = ring_agreement(graph.nx, graph.ny, graph.edges, vote_x, vote_y, sigma)
-            factor = 1.0 / (1.0 + (r_self / (cfg.truncation * sigma)) ** 2)
+            own = sigma if node_scale is None else sigma * node_scale
+            factor = 1.0 / (1.0 + (r_self / (cfg.truncation * own)) ** 2)
             conf = conf * np.where(ring_ok & (agree >= 0.5), factor, 1.0)
+    # Fitting weight: the confidence, and (sigma / sigma_k)^2 where a node has its own scale.
+    fit_w = conf if node_scale is None else conf / node_scale**2
     lm_kw = dict(loss=cfg.robust_loss, loss_scale_px_s=cfg.robust_scale * sigma,
                  truncation=cfg.truncation / cfg.robust_scale, iterations=cfg.lm_iterations,
-                 damping=cfg.lm_damping, weights=conf)
+                 damping=cfg.lm_damping, weights=fit_w)
     predicted = np.empty((0, 4))
     n_object_candidates = 0
     if previous is not None and m and previous.n_objects > 0 and previous.origin_px == origin:
@@ -224,7 +242,7 @@ def segment_normal_flow(
                 graph.x, graph.y, graph.nx, graph.ny,
                 np.array([previous.boxes[k] for k in ids], dtype=np.float64),
                 previous.models[ids], origin, dt_s, cfg.prediction_margin_px,
-                cfg.min_prediction_nodes, weights=conf, loss=cfg.robust_loss,
+                cfg.min_prediction_nodes, weights=fit_w, loss=cfg.robust_loss,
                 loss_scale_px_s=cfg.robust_scale * sigma, iterations=cfg.lm_iterations)
             n_object_candidates = len(predicted)
     if previous is not None and len(previous.models) and previous.origin_px == origin:
@@ -245,7 +263,7 @@ def segment_normal_flow(
     e_final = 0.0
     if m and len(models):
         def costs(mod):
-            return data_costs(mod, xr, yr, graph.nx, graph.ny, sigma, cfg.truncation, conf)
+            return data_costs(mod, xr, yr, graph.nx, graph.ny, sigma, cfg.truncation, conf, node_scale)
 
         ar = np.arange(m)
         # Round 0 (see module docstring): fit each sampled candidate to the nodes that voted
@@ -264,9 +282,9 @@ def segment_normal_flow(
             if n_extra:
                 keep = region >= 0
                 start = fit_linear(xr[keep], yr[keep], graph.nx[keep], graph.ny[keep], region[keep],
-                                   n_extra, weights=conf[keep])
+                                   n_extra, weights=fit_w[keep])
                 extra = fit_lm(xr[keep], yr[keep], graph.nx[keep], graph.ny[keep], region[keep],
-                               start, **{**lm_kw, "weights": conf[keep]})
+                               start, **{**lm_kw, "weights": fit_w[keep]})
                 models = np.concatenate([models, extra])
                 data = costs(models)
                 labels = np.argmin(data, axis=1)

@@ -144,3 +144,36 @@ def test_split_objects_joins_nearby_pieces_of_one_label():
     np.testing.assert_array_equal(new, [1, 1, 1, 0, 1, 1, 1, 0, 2, 2, 2])
     new, _, _ = split_objects(labels, edges, models, 3, x, y, gap_px=0.0)
     assert len(np.unique(new[new > 0])) == 3
+
+
+def test_data_cost_with_node_scale_is_exact():
+    """cost = c * min((r / (sigma * s_k))^2, tau^2): hand-computed for one node, one model."""
+    from evseg.segmentation.energy import data_costs
+
+    # Model: pure translation (10, 0) px/s (rho = theta = 0). Node flow (4, 0): residual
+    # n.u/|n| - |n| = 10 - 4 = 6 px/s.
+    model = np.array([[0.0, 0.0, 10.0, 0.0]])
+    one = np.array([0.0])
+    args = (model, one, one, np.array([4.0]), one, 2.0, 3.0)
+    assert data_costs(*args)[0, 0] == pytest.approx(9.0)  # (6 / 2)^2 = 9 = tau^2
+    assert data_costs(*args, node_scale=np.array([2.0]))[0, 0] == pytest.approx(2.25)  # (6 / 4)^2
+    assert data_costs(*args, confidence=np.array([0.5]), node_scale=np.array([1.5]))[0, 0] == pytest.approx(2.0)
+
+
+def test_uncertain_fast_object_keeps_its_pull_in_scale_mode():
+    """Flows with a relative magnitude error of about their uncertainty (the learned flow: a
+    fast object's flows are the least certain) still give the object, with 'scale' use of the
+    uncertainty; every node's residual scale is sigma_k = sqrt(sigma^2 + (|n_k| u_k)^2)."""
+    s = synthetic_scene(n_flows=2500, n_objects=1, seed=2)
+    rng = np.random.default_rng(0)
+    u = np.where(s.label == 1, 0.3, 0.05)
+    gain = 1.0 + u * rng.standard_normal(len(u))
+    nx, ny = s.nx * gain, s.ny * gain
+    r = segment_normal_flow(s.x, s.y, s.t, nx, ny, uncertainty=u, sensor_size=s.sensor_size,
+                            config=SegmentationConfig(uncertainty_use="scale"))
+    assert r.n_objects == 1
+    lab, share = majority(s.label[r.node_index], r.node_labels, 1)
+    assert lab == 1 and share > 0.9
+    # The same flows without their uncertainty must not be segmented identically (it is used).
+    r0 = segment_normal_flow(s.x, s.y, s.t, nx, ny, sensor_size=s.sensor_size)
+    assert not np.array_equal(r0.node_labels, r.node_labels)
