@@ -223,8 +223,12 @@ def nearest_node_labels(
     out = np.full(len(x), -1, dtype=np.int64)
     if len(node_x) == 0 or len(x) == 0:
         return out
+    # Events repeat pixels (an edge fires a pixel several times per window): query each
+    # distinct position once.
+    pos, inverse = np.unique(x + 1j * y, return_inverse=True)
     tree = cKDTree(np.column_stack([node_x, node_y]))
-    dist, idx = tree.query(np.column_stack([x, y]), distance_upper_bound=max_distance_px)
+    dist, idx = tree.query(np.column_stack([pos.real, pos.imag]), distance_upper_bound=max_distance_px)
     hit = np.isfinite(dist)
-    out[hit] = np.asarray(node_labels, dtype=np.int64)[idx[hit]]
-    return out
+    per_pos = np.full(len(pos), -1, dtype=np.int64)
+    per_pos[hit] = np.asarray(node_labels, dtype=np.int64)[idx[hit]]
+    return per_pos[inverse.ravel()]

@@ -80,7 +80,8 @@ class EncodingConfig:
             stream of the seed, so 0 leaves the matrix exactly as before). With a 10 ms time
             scale and alpha 2 the temporal resolution is ~5 ms, coarse for an edge crossing
             a pixel in 2-3 ms (a 400 px/s ball): 2 octaves reach down to ~1.3 ms while half the
-            features keep the coarse scales that slow edges need.
+            features keep the coarse scales that slow edges need. Negative values spread
+            towards coarser resolutions instead (for long contexts and slow edges).
 
     Defaults: chosen on simulated scenes (evimo_like, eed_like, ego_only; 20 ms slices, cell
     targets, same short training each): a 7x7 window with alpha 2 and 10 ms time scale gave a
@@ -114,8 +115,8 @@ class EncodingConfig:
             raise ConfigError(f"EncodingConfig: field 'polarity' must be true or false, got {self.polarity!r}")
         object.__setattr__(self, "polarity", bool(self.polarity))
         t_oct = float(self.t_octaves)
-        if not np.isfinite(t_oct) or not 0 <= t_oct <= 8:
-            raise ConfigError(f"EncodingConfig: field 't_octaves' must be in [0, 8], got {self.t_octaves!r}")
+        if not np.isfinite(t_oct) or not -8 <= t_oct <= 8:
+            raise ConfigError(f"EncodingConfig: field 't_octaves' must be in [-8, 8], got {self.t_octaves!r}")
         object.__setattr__(self, "t_octaves", t_oct)
 
     @property
