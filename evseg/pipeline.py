@@ -72,7 +72,7 @@ class PipelineConfig:
     model_path: str | None = None
     threads: int | None = None
     target_cell_px: int | None = 2
-    flow_context_us: int = 10_000
+    flow_context_us: int = 20_000
     segmentation: object | None = None
 
     def __post_init__(self) -> None:

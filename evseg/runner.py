@@ -29,7 +29,7 @@ class SegmentJob:
     config: str | None = None
     window_ms: float = 10.0
     stride_ms: float | None = None
-    flow_context_ms: float = 10.0
+    flow_context_ms: float = 20.0
     flow_file: Path | None = None
     flow_method: str = "learned"
     model: Path | None = None

@@ -142,7 +142,7 @@ def test_calibrated_pipeline_labels_every_window(sim):
 
 
 def test_learned_pipeline_flow_equals_the_flow_command_with_context(sim, tmp_path):
-    """`evseg flow` (10 ms slices, 10 ms context: the defaults) computes exactly the flows the
+    """`evseg flow` (10 ms slices, 20 ms context: the defaults) computes exactly the flows the
     learned pipeline uses, so `evseg flow` + `evseg segment --flow` is the same system; and the
     context changes the flows of later windows (it is really used)."""
     rec, d = sim
@@ -150,13 +150,14 @@ def test_learned_pipeline_flow_equals_the_flow_command_with_context(sim, tmp_pat
     assert main(["flow", str(d / "sim.npz"), "--out", str(out), "--no-progress"]) == 0
     z = np.load(out)
     results = {}
-    for context_us in (10_000, 0):
+    assert PipelineConfig().flow_context_us == 20_000
+    for context_us in (20_000, 0):
         pipe = MotionSegmentationPipeline(PipelineConfig(flow_context_us=context_us), sensor_size=rec.stream.sensor_size)
         results[context_us] = list(pipe.run(rec.stream))
-    idx = np.concatenate([r.flow_index + r.first_event for r in results[10_000]])
-    flow = np.concatenate([r.flow for r in results[10_000]])
+    idx = np.concatenate([r.flow_index + r.first_event for r in results[20_000]])
+    flow = np.concatenate([r.flow for r in results[20_000]])
     np.testing.assert_array_equal(idx, z["index"])
     np.testing.assert_allclose(flow, np.stack([z["nx"], z["ny"]], 1), rtol=1e-5, atol=1e-3)
-    first = results[0][0].flow, results[10_000][0].flow  # no events before the first window
+    first = results[0][0].flow, results[20_000][0].flow  # no events before the first window
     np.testing.assert_array_equal(*first)
-    assert not np.allclose(results[0][2].flow, results[10_000][2].flow)
+    assert not np.allclose(results[0][2].flow, results[20_000][2].flow)

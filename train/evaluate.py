@@ -65,7 +65,7 @@ class FlowEvalConfig:
     seeds: tuple[int, ...] = (1000, 1001, 1002, 1003)
     duration_us: int = 200_000
     slice_us: int = 10_000
-    context_us: int = 10_000
+    context_us: int = 20_000
     cell_px: int = 2
     max_targets_per_slice: int = 2000
     drop_fraction: float = 0.2

@@ -35,7 +35,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--baseline", action="store_true", help="use the plane-fit baseline instead of the model")
     p.add_argument("--calib", type=Path, default=None, help="calibration YAML (default: the file's own, if any)")
     p.add_argument("--window-ms", type=float, default=10.0, help="slice duration (ms): the targets of one slice")
-    p.add_argument("--context-ms", type=float, default=10.0,
+    p.add_argument("--context-ms", type=float, default=20.0,
                    help="events of this span (ms) before a slice are neighbours of its targets too (0: the slice only)")
     p.add_argument("--targets", choices=["cell", "all"], default="cell", help="which events get a flow")
     p.add_argument("--cell-px", type=int, default=2, help="cell side (px) for --targets cell")

@@ -28,7 +28,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", default=None, help="segmentation preset name or YAML file")
     p.add_argument("--window-ms", type=float, default=10.0, help="window duration (ms)")
     p.add_argument("--stride-ms", type=float, default=None, help="time between windows (ms); default = window")
-    p.add_argument("--flow-context-ms", type=float, default=10.0,
+    p.add_argument("--flow-context-ms", type=float, default=20.0,
                    help="events of this span (ms) before a window are neighbours in its normal flow estimate")
     p.add_argument("--flow", type=Path, default=None,
                    help="precomputed normal flow (.npz with index, nx, ny [px/s], optional uncertainty)")
