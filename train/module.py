@@ -50,7 +50,7 @@ class NormalFlowModule(pl.LightningModule):
     ):
         super().__init__()
         encoding = EncodingConfig.from_dict(dict(encoding or {})).to_dict()
-        head = dict(head or {})
+        head = _head_arguments(head)
         self.save_hyperparameters({"encoding": encoding, "head": head, "lr": lr,
                                    "weight_decay": weight_decay,
                                    "uncertainty_weight": uncertainty_weight,
@@ -137,3 +137,23 @@ class NormalFlowModule(pl.LightningModule):
             return opt
         sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=self.hparams.lr, total_steps=int(total), pct_start=0.1)
         return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
+
+
+def _head_arguments(head: dict | None) -> dict:
+    """The head's size arguments as ints. Values set on the command line
+    (``--model.head.hidden 128``) arrive as strings; anything else is a ConfigError naming
+    the field."""
+    from evseg.errors import ConfigError
+
+    out = {}
+    for key, value in dict(head or {}).items():
+        if key not in ("hidden", "layers"):
+            raise ConfigError(f"model.head: unknown field '{key}'; known: hidden, layers")
+        try:
+            number = int(str(value).strip())
+        except ValueError:
+            number = None
+        if number is None or number < 1 or isinstance(value, bool) or (isinstance(value, float) and value != number):
+            raise ConfigError(f"model.head.{key} must be a positive integer, got {value!r}")
+        out[key] = number
+    return out

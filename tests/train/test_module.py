@@ -29,6 +29,20 @@ def test_hyper_parameters_follow_the_checkpoint_format():
     assert m(torch.zeros(4, 33)).shape == (4, 3)
 
 
+def test_head_sizes_from_the_command_line_are_ints_and_bad_ones_are_named():
+    """`--model.head.hidden 128` reaches the module as the string '128'."""
+    import pytest
+
+    from evseg.errors import ConfigError
+
+    m = NormalFlowModule(head={"hidden": "128", "layers": 2})
+    assert m.hparams.head == {"hidden": 128, "layers": 2} and m.head.hidden == 128
+    for bad, field in (({"hidden": "wide"}, "hidden"), ({"layers": 0}, "layers"), ({"hidden": 1.5}, "hidden"),
+                       ({"depth": 2}, "depth")):
+        with pytest.raises(ConfigError, match=field):
+            NormalFlowModule(head=bad)
+
+
 def test_loss_kind_follows_the_available_ground_truth():
     m = NormalFlowModule(head={"hidden": 16, "layers": 1})
     nf = m._losses(_batch(kind="nf"))
