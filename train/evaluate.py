@@ -266,14 +266,16 @@ def recording_slices(events: np.ndarray, slice_us: int, max_slices: int) -> list
 
 
 def sharpness_of_slice(
-    events: np.ndarray, sensor_size, learned: Estimator, baseline: Estimator, cell_px: int = 2
+    events: np.ndarray, sensor_size, learned: Estimator, baseline: Estimator, cell_px: int = 2,
+    context: np.ndarray | None = None,
 ) -> tuple[float, float, int]:
-    """Warp sharpness of learned and baseline flow on the targets both estimate; and their count."""
+    """Warp sharpness of learned and baseline flow on the targets both estimate; and their count.
+    ``context``: events before the slice, neighbours for both estimators (as in the pipeline)."""
     from evseg.veckm_flow.targets import select_targets
 
     idx = select_targets(events, sensor_size, cell_px=cell_px)
-    p, _ = _flows(learned, events, sensor_size, idx)
-    b, _ = _flows(baseline, events, sensor_size, idx)
+    p, _ = _flows(learned, events, sensor_size, idx, context)
+    b, _ = _flows(baseline, events, sensor_size, idx, context)
     ok = np.all(np.isfinite(p), axis=1) & np.all(np.isfinite(b), axis=1)
     e = events[idx[ok]]
     shape = (sensor_size[1], sensor_size[0])
@@ -282,9 +284,11 @@ def sharpness_of_slice(
 
 
 def evaluate_estimators_real(
-    learned: Estimator, baseline: Estimator, root: Path, slice_us: int = 10_000, max_slices: int = 20
+    learned: Estimator, baseline: Estimator, root: Path, slice_us: int = 10_000, max_slices: int = 20,
+    context_us: int = FlowEvalConfig.context_us,
 ) -> list[dict]:
-    """Rows per real recording: median warp sharpness of both estimators over slices."""
+    """Rows per real recording: median warp sharpness of both estimators over slices (each
+    with ``context_us`` of events before it as neighbours)."""
     from evseg.io import read_events
 
     rows = []
@@ -295,7 +299,10 @@ def evaluate_estimators_real(
         stream = read_events(path)
         ls, bs, n = [], [], 0
         for a, b in recording_slices(stream.events, slice_us, max_slices):
-            sl, sb, k = sharpness_of_slice(stream.events[a:b], stream.sensor_size, learned, baseline)
+            t0 = int(stream.events["t"][a])
+            c = int(np.searchsorted(stream.events["t"], t0 - context_us)) if context_us > 0 else a
+            sl, sb, k = sharpness_of_slice(stream.events[a:b], stream.sensor_size, learned, baseline,
+                                           context=stream.events[c:a])
             if np.isfinite(sl) and np.isfinite(sb):
                 ls.append(sl)
                 bs.append(sb)
@@ -380,9 +387,13 @@ def flow_picture(events: np.ndarray, sensor_size, flows: dict[str, np.ndarray], 
     return out
 
 
-def save_real_pictures(out_dir: str | Path, model_path: str | Path | None = None, slice_us: int = 10_000) -> list[Path]:
+def save_real_pictures(
+    out_dir: str | Path, model_path: str | Path | None = None, slice_us: int = 10_000,
+    context_us: int = FlowEvalConfig.context_us,
+) -> list[Path]:
     """Write ``flow_<recording>.png`` per shared real recording (learned | plane fit) into
-    ``out_dir``, from the middle slice of each recording. Returns the paths written."""
+    ``out_dir``, from the middle slice of each recording (with ``context_us`` of events before
+    it as neighbours, as the pipeline). Returns the paths written."""
     import cv2
 
     from evseg.io import read_events
@@ -403,9 +414,10 @@ def save_real_pictures(out_dir: str | Path, model_path: str | Path | None = None
             continue
         a, b = bounds[len(bounds) // 2]
         e = stream.events[a:b]
+        context = stream.events[np.searchsorted(stream.events["t"], int(e["t"][0]) - context_us) : a]
         idx = select_targets(e, stream.sensor_size, cell_px=1)
-        p, _ = _flows(learned, e, stream.sensor_size, idx)
-        q, _ = _flows(baseline, e, stream.sensor_size, idx)
+        p, _ = _flows(learned, e, stream.sensor_size, idx, context)
+        q, _ = _flows(baseline, e, stream.sensor_size, idx, context)
         scale = 3 if max(stream.sensor_size) <= 128 else 2
         img = flow_picture(e[idx], stream.sensor_size, {"learned": p, "plane fit": q}, scale=scale)
         name = f"flow_{Path(rel).parent.name}_{Path(rel).stem}.png"
