@@ -92,8 +92,11 @@ class SegmentationConfig:
     """Label cost (Delong et al. 2012) paid once per motion model in use (sigma^2 units)."""
 
     # --- optimisation ------------------------------------------------------------------
-    max_rounds: int = 8
-    """Maximum alternations of labeling (alpha-expansion) and fitting (LM)."""
+    max_rounds: int = 3
+    """Maximum alternations of labeling (alpha-expansion) and fitting (LM). On the oracle
+    evaluation 3 rounds give the same detection, IoU and count as 8 (and slightly better with
+    30 % outliers); with the learned flow, whose noise keeps a few nodes flipping, 8 rounds
+    cost twice the time for the same accuracy (EMSGC uses 5)."""
     expansion_cycles: int = 1
     """Maximum sweeps over all labels in one labeling step (EMSGC uses 2; the alternation
     sweeps again in the next round anyway, so 1 is as good and half the max-flows)."""

@@ -31,9 +31,9 @@ def test_wrong_types_and_values(tmp_path):
     p.write_text("robust_loss: tukey\n")
     with pytest.raises(ConfigError, match="robust_loss"):
         load_segmentation_config(p)
-    p.write_text("origin_px: [1, 2]\nmax_rounds: 3\nlambda_m: 7\n")
+    p.write_text("origin_px: [1, 2]\nmax_rounds: 5\nlambda_m: 7\n")
     cfg = load_segmentation_config(p)
-    assert cfg.origin_px == (1.0, 2.0) and cfg.max_rounds == 3 and cfg.lambda_m == 7.0
+    assert cfg.origin_px == (1.0, 2.0) and cfg.max_rounds == 5 and cfg.lambda_m == 7.0
     with pytest.raises(ConfigError):
         SegmentationConfig(max_rounds=0)
     with pytest.raises(ConfigError, match="unknown segmentation preset"):
