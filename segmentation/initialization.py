@@ -60,26 +60,14 @@ def local_translations(
     norm = np.hypot(nx, ny)
     hx, hy = nx / norm, ny / norm
     # ring pairs (centre, member): each node with itself and both directions of every edge
+    edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
     centre = np.concatenate([np.arange(m), edges[:, 0], edges[:, 1]])
     member = np.concatenate([np.arange(m), edges[:, 1], edges[:, 0]])
-    px, py, pn = hx[member], hy[member], norm[member]
-    terms = (px * px, px * py, py * py, pn * px, pn * py)
+    from evseg.segmentation._kernels import ring_translations
 
-    def solve(w):
-        a, b, c, bx, by = (np.bincount(centre, weights=w * v, minlength=m) for v in terms)
-        det = a * c - b * b
-        disc = np.sqrt(np.maximum((a + c) ** 2 / 4.0 - det, 0.0))
-        lmax, lmin = (a + c) / 2.0 + disc, (a + c) / 2.0 - disc
-        ok = lmin >= min_conditioning * np.maximum(lmax, 1e-300)
-        safe = np.where(ok, det, 1.0)
-        return np.where(ok, (c * bx - b * by) / safe, nx), np.where(ok, (a * by - b * bx) / safe, ny), ok
-
-    tx, ty, ok = solve(np.ones(len(centre)))
-    if scale_px_s is not None:
-        for _ in range(irls_iterations):
-            r = (px * tx[centre] + py * ty[centre] - pn) / scale_px_s
-            tx, ty, ok = solve(1.0 / (1.0 + r * r))
-    return tx, ty, ok
+    scale = float(scale_px_s) if scale_px_s is not None else 0.0
+    return ring_translations(centre, hx[member], hy[member], norm[member], m, scale,
+                             int(irls_iterations), float(min_conditioning), nx, ny)
 
 
 def ring_agreement(

@@ -24,6 +24,44 @@ def test_local_translations_recover_a_pure_translation_exactly():
     np.testing.assert_allclose(ty[ok], -45.0, atol=1e-6)
 
 
+def _ring_reference(nx, ny, edges, scale, iterations=3, min_conditioning=0.1):
+    """The robust 1-ring translation written plainly (per node, per iteration)."""
+    m = len(nx)
+    norm = np.hypot(nx, ny)
+    rings = [[i] for i in range(m)]
+    for i, j in edges:
+        rings[i].append(j)
+        rings[j].append(i)
+    tx, ty, ok = np.array(nx, float), np.array(ny, float), np.zeros(m, bool)
+    for i in range(m):
+        h = np.stack([nx[rings[i]], ny[rings[i]]], 1) / norm[rings[i], None]
+        w = np.ones(len(h))
+        for it in range(iterations + 1):
+            if it:
+                r = (h @ np.array([tx[i], ty[i]]) - norm[rings[i]]) / scale
+                w = 1 / (1 + r * r)
+            a = (h * w[:, None]).T @ h
+            ev = np.linalg.eigvalsh(a)
+            ok[i] = ev[0] >= min_conditioning * ev[1]
+            if ok[i]:
+                tx[i], ty[i] = np.linalg.solve(a, (h * (w * norm[rings[i]])[:, None]).sum(0))
+            else:  # the node's own flow; its ring is reweighted around it next iteration
+                tx[i], ty[i] = nx[i], ny[i]
+    return tx, ty, ok
+
+
+def test_local_translations_match_a_plain_per_node_solution_with_outliers():
+    rng = np.random.default_rng(5)
+    x, y = rng.uniform(0, 60, 120), rng.uniform(0, 60, 120)
+    nx, ny = rng.normal(0, 80, 120), rng.normal(0, 80, 120)
+    edges = delaunay_edges(x, y)
+    tx, ty, ok = local_translations(nx, ny, edges, scale_px_s=20.0)
+    rx, ry, rok = _ring_reference(nx, ny, edges, 20.0)
+    np.testing.assert_array_equal(ok, rok)
+    np.testing.assert_allclose(tx, rx, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(ty, ry, rtol=1e-9, atol=1e-9)
+
+
 def test_parallel_ring_does_not_vote():
     x = np.array([0.0, 1.0, 0.0, 1.0])
     y = np.array([0.0, 0.0, 1.0, 1.0])
