@@ -47,6 +47,23 @@ def optical_flow_error(pred: torch.Tensor, u: torch.Tensor, eps: float = 0.1) ->
     return (torch.log(eps + r) - torch.log(eps + 0.5 * u.norm(dim=1))).abs()
 
 
+def magnitude_weights(gt: torch.Tensor, balance: float, bins: int = 12, cap: float = 10.0) -> torch.Tensor:
+    """Per-target weights (T,) ``p(log |gt|)^-balance`` from the histogram of log speed of the
+    batch, normalised to mean 1 and capped at ``cap`` (then renormalised): rare speeds weigh
+    more. Detached (a function of the targets only)."""
+    with torch.no_grad():
+        logm = torch.log(gt.norm(dim=1).clamp_min(1e-6))
+        lo, hi = float(logm.min()), float(logm.max())
+        if hi - lo < 1e-9:
+            return torch.ones_like(logm)
+        idx = ((logm - lo) / (hi - lo) * bins).long().clamp(0, bins - 1)
+        freq = torch.bincount(idx, minlength=bins).to(logm.dtype) / len(logm)
+        w = freq[idx].pow(-float(balance))
+        w = w / w.mean()
+        w = w.clamp(max=cap)
+        return w / w.mean()
+
+
 def uncertainty_nll(log_u: torch.Tensor, err: torch.Tensor) -> torch.Tensor:
     """Per-target Laplace NLL (T,): minimised by ``exp(log_u) = E[err]``; ``err`` is detached."""
     return err.detach() * torch.exp(-log_u) + log_u

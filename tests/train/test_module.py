@@ -70,3 +70,15 @@ def test_optimiser_steps_reduce_the_normal_flow_loss():
         opt.step()
     last = m._losses(batch)["nf"].item()
     assert math.isfinite(last) and last < 0.5 * first  # 64 random rows: an MLP memorises them
+
+
+def test_magnitude_weights_favour_rare_speeds():
+    from evseg.veckm_flow.losses import magnitude_weights
+
+    gt = torch.cat([torch.full((99, 2), 10.0), torch.full((1, 2), 1000.0)])  # one fast target
+    w = magnitude_weights(gt, 1.0)
+    assert torch.allclose(w.mean(), torch.tensor(1.0)) and w[-1] > 5 * w[0]
+    assert torch.allclose(magnitude_weights(gt, 0.0), torch.ones(100))
+    assert torch.allclose(magnitude_weights(torch.ones(5, 2), 1.0), torch.ones(5))  # one speed
+    m = NormalFlowModule(magnitude_balance=0.5)
+    assert m.hparams.magnitude_balance == 0.5 and torch.isfinite(m._losses(_batch())["loss"])
