@@ -169,7 +169,9 @@ def test_broken_yaml_segmentation_config_is_one_line(tmp_path, capsys, sim_files
 
 @pytest.mark.parametrize("extra, field", [(["--window-ms", "0"], "--window-ms"),
                                           (["--stride-ms", "-5"], "stride_us"),
-                                          (["--sensor-size", "12xx"], "12xx")])
+                                          (["--sensor-size", "12xx"], "12xx"),
+                                          (["--flow-context-ms", "-1"], "--flow-context-ms"),
+                                          (["--flow-context-ms", "nan"], "--flow-context-ms")])
 def test_bad_options(extra, field, tmp_path, capsys, sim_files):
     _, recording, _ = sim_files
     _segment_fails_cleanly(capsys, tmp_path, recording, extra, [field])

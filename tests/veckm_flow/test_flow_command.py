@@ -72,5 +72,6 @@ def test_flow_option_errors_are_user_errors(recording, tmp_path, capsys):
     path, _ = recording
     assert main(["flow", str(path), "--out", str(tmp_path / "x.npz"), "--baseline", "--model", "m.onnx"]) == 2
     assert main(["flow", str(path), "--out", str(tmp_path / "x.npz"), "--model", str(tmp_path / "none.onnx")]) == 2
+    assert main(["flow", str(path), "--out", str(tmp_path / "x.npz"), "--context-ms", "-1"]) == 2
     assert "none.onnx" in capsys.readouterr().err
     assert not (tmp_path / "x.npz").exists()
