@@ -82,8 +82,9 @@ class PipelineConfig:
             raise ConfigError(f"pipeline.window_us must be positive, got {self.window_us}")
         if self.stride_us is not None and int(self.stride_us) <= 0:
             raise ConfigError(f"pipeline.stride_us must be positive, got {self.stride_us}")
-        if int(self.flow_context_us) != self.flow_context_us or self.flow_context_us < 0:
-            raise ConfigError(f"pipeline.flow_context_us must be a non-negative integer (us), got {self.flow_context_us}")
+        ctx = self.flow_context_us
+        if not (isinstance(ctx, (int, np.integer)) or (isinstance(ctx, float) and ctx.is_integer())) or ctx < 0:
+            raise ConfigError(f"pipeline.flow_context_us must be a non-negative integer (us), got {ctx!r}")
 
 
 @dataclass

@@ -161,3 +161,9 @@ def test_learned_pipeline_flow_equals_the_flow_command_with_context(sim, tmp_pat
     first = results[0][0].flow, results[20_000][0].flow  # no events before the first window
     np.testing.assert_array_equal(*first)
     assert not np.allclose(results[0][2].flow, results[20_000][2].flow)
+
+
+@pytest.mark.parametrize("bad", [-1, 2.5, float("nan"), "20"])
+def test_bad_flow_context_is_a_config_error(bad):
+    with pytest.raises(ConfigError, match="flow_context_us"):
+        PipelineConfig(flow_context_us=bad)
