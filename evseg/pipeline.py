@@ -204,6 +204,8 @@ class MotionSegmentationPipeline:
         """Forget the previous window (motion prediction) and the object tracks."""
         self._previous = None
         self._tracker = ObjectTracker()
+        # object id -> (last model, last per-window displacement px) of each live track
+        self._track_motion: dict[int, tuple[np.ndarray, tuple[float, float]]] = {}
 
     def _make_flow_fn(self) -> FlowFn | None:
         cfg = self.config
@@ -270,6 +272,7 @@ class MotionSegmentationPipeline:
         seg = segment_normal_flow(
             fx, fy, ft, nx, ny, uncertainty=unc, config=self.config.segmentation,
             sensor_size=self.sensor_size, previous=self._previous,
+            tracked_objects=self._tracked_objects(),
         )
         for k, v in getattr(seg, "timings", {}).items():
             timings[k] = v
@@ -297,19 +300,30 @@ class MotionSegmentationPipeline:
             flow=np.stack([nx, ny], axis=-1), segmentation=seg, timings_ms=timings,
         )
 
+    def _tracked_objects(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """Boxes (moved to this window) and last models of the live tracks, for motion
+        prediction; None before any object was seen."""
+        ids = [oid for oid in sorted(self._tracker.tracks) if oid in self._track_motion]
+        if not ids:
+            return None
+        boxes = np.array([self._tracker.tracks[oid] for oid in ids], dtype=np.float64)
+        return boxes, np.array([self._track_motion[oid][0] for oid in ids])
+
     def _predict_tracks(self, seg, mapping: dict[int, int]) -> None:
-        """Move each tracked box by its model's flow at the box centre over one stride."""
+        """Move each tracked box by its model's flow at the box centre over one stride; a
+        track missed in this window moves on with its last displacement."""
         from evseg.segmentation.motion_model import flow_field
 
         dt_s = (self.config.stride_us or self.config.window_us) * 1e-6
-        disp = {}
         ox, oy = seg.origin_px
         for label, oid in mapping.items():
             x0, y0, x1, y1 = seg.boxes[label]
             cx, cy = np.array([(x0 + x1) / 2.0 - ox]), np.array([(y0 + y1) / 2.0 - oy])
             u, v = flow_field(np.asarray(seg.models[label : label + 1]), cx, cy)
-            disp[oid] = (float(u[0, 0]) * dt_s, float(v[0, 0]) * dt_s)
-        self._tracker.predict(disp, self.sensor_size)
+            self._track_motion[oid] = (np.array(seg.models[label], dtype=np.float64),
+                                       (float(u[0, 0]) * dt_s, float(v[0, 0]) * dt_s))
+        self._track_motion = {k: v for k, v in self._track_motion.items() if k in self._tracker.tracks}
+        self._tracker.predict({oid: motion[1] for oid, motion in self._track_motion.items()}, self.sensor_size)
 
     # ------------------------------------------------------------------ streams
     def run(

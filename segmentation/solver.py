@@ -176,6 +176,7 @@ def segment_normal_flow(
     config: SegmentationConfig = SegmentationConfig(),
     sensor_size: tuple[int, int] | None = None,
     previous: SegmentationResult | None = None,
+    tracked_objects: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> SegmentationResult:
     """Segment one window of normal flow into background and independently moving objects.
 
@@ -186,6 +187,11 @@ def segment_normal_flow(
         uncertainty: (N,) optional; larger = less certain.
         config: parameters. sensor_size: (width, height) px; needed for masks and the
             default origin. previous: the previous window's result (motion prediction).
+        tracked_objects: optional ``(boxes (K, 4), models (K, 4))``: objects a tracker expects
+            in this window, boxes already moved to it (inclusive px, absolute) and their last
+            models (about the same origin). They replace the prediction from ``previous``'s
+            objects, so an object missed in one window still gets its candidate in the next
+            (the pipeline passes its tracks); ``previous`` still gives the background candidate.
     Returns:
         :class:`SegmentationResult`. Inputs are not modified.
     """
@@ -234,7 +240,16 @@ def segment_normal_flow(
                  damping=cfg.lm_damping, weights=fit_w)
     predicted = np.empty((0, 4))
     n_object_candidates = 0
-    if previous is not None and m and previous.n_objects > 0 and previous.origin_px == origin:
+    if tracked_objects is not None and m:
+        boxes = np.asarray(tracked_objects[0], dtype=np.float64).reshape(-1, 4)
+        if len(boxes):
+            predicted = motion_prediction(
+                graph.x, graph.y, graph.nx, graph.ny, boxes,
+                np.asarray(tracked_objects[1], dtype=np.float64).reshape(-1, 4), origin, 0.0,
+                cfg.prediction_margin_px, cfg.min_prediction_nodes, weights=fit_w, loss=cfg.robust_loss,
+                loss_scale_px_s=cfg.robust_scale * sigma, iterations=cfg.lm_iterations)
+            n_object_candidates = len(predicted)
+    elif previous is not None and m and previous.n_objects > 0 and previous.origin_px == origin:
         ids = sorted(previous.boxes)
         if ids:
             dt_s = (t_ref - previous.t_ref_us) * 1e-6

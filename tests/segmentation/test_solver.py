@@ -71,6 +71,23 @@ def test_motion_prediction_supplies_candidates():
     assert second.n_objects == 2
 
 
+def test_tracked_objects_supply_candidates_fast_sampling_does_not():
+    """A tracker's box and model (the pipeline's tracks, alive through a missed window) give
+    the object its candidate; with one sampled candidate (the background's) and no track the
+    object cannot be found."""
+    s = synthetic_scene(n_flows=2500, n_objects=1, seed=4)
+    cfg = SegmentationConfig(n_sampled=1, n_sampled_with_prediction=1, n_resampled=0)
+    alone = segment_normal_flow(s.x, s.y, s.t, s.nx, s.ny, config=cfg, sensor_size=s.sensor_size)
+    assert alone.n_objects == 0
+    on = s.label == 1
+    box = np.array([[s.x[on].min(), s.y[on].min(), s.x[on].max(), s.y[on].max()]])
+    tracked = segment_normal_flow(s.x, s.y, s.t, s.nx, s.ny, config=cfg, sensor_size=s.sensor_size,
+                                  tracked_objects=(box, s.models[1:2]))
+    assert tracked.n_predicted == 1 and tracked.n_objects == 1
+    lab, share = majority(s.label[tracked.node_index], tracked.node_labels, 1)
+    assert lab == 1 and share > 0.9
+
+
 def test_outliers_do_not_create_objects():
     s = synthetic_scene(n_flows=2500, n_objects=1, seed=4, outlier_fraction=0.3)
     r = segment_normal_flow(s.x, s.y, s.t, s.nx, s.ny, sensor_size=s.sensor_size)
