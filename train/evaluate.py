@@ -154,6 +154,14 @@ Estimator = Callable[..., object]
 """``est(events, sensor_size, targets) -> NormalFlow`` (index, nx, ny, uncertainty)."""
 
 
+def context_before(events: np.ndarray, first: int, t0_us: int, context_us: int) -> np.ndarray:
+    """The events with ``t0_us - context_us <= t`` before position ``first`` (a slice's start):
+    the neighbours-only context the pipeline gives a window (empty for ``context_us = 0``)."""
+    if context_us <= 0:
+        return events[first:first]
+    return events[int(np.searchsorted(events["t"], t0_us - context_us, side="left")) : first]
+
+
 def _flows(
     est: Estimator, events: np.ndarray, sensor_size, targets: np.ndarray, context: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -189,7 +197,7 @@ def collect_scene(rec, learned: Estimator, baseline: Estimator, cfg: FlowEvalCon
             idx = np.sort(rng.choice(idx, cfg.max_targets_per_slice, replace=False))
         if len(idx) == 0:
             continue
-        context = ev[np.searchsorted(t, t0 - cfg.context_us) : a] if cfg.context_us > 0 else None
+        context = context_before(ev, int(a), t0, cfg.context_us)
         p, unc = _flows(learned, e, sensor, idx, context)
         bflow, _ = _flows(baseline, e, sensor, idx, context)
         out.learned.append(p)
@@ -299,10 +307,9 @@ def evaluate_estimators_real(
         stream = read_events(path)
         ls, bs, n = [], [], 0
         for a, b in recording_slices(stream.events, slice_us, max_slices):
-            t0 = int(stream.events["t"][a])
-            c = int(np.searchsorted(stream.events["t"], t0 - context_us)) if context_us > 0 else a
+            context = context_before(stream.events, a, int(stream.events["t"][a]), context_us)
             sl, sb, k = sharpness_of_slice(stream.events[a:b], stream.sensor_size, learned, baseline,
-                                           context=stream.events[c:a])
+                                           context=context)
             if np.isfinite(sl) and np.isfinite(sb):
                 ls.append(sl)
                 bs.append(sb)
@@ -414,7 +421,7 @@ def save_real_pictures(
             continue
         a, b = bounds[len(bounds) // 2]
         e = stream.events[a:b]
-        context = stream.events[np.searchsorted(stream.events["t"], int(e["t"][0]) - context_us) : a]
+        context = context_before(stream.events, a, int(e["t"][0]), context_us)
         idx = select_targets(e, stream.sensor_size, cell_px=1)
         p, _ = _flows(learned, e, stream.sensor_size, idx, context)
         q, _ = _flows(baseline, e, stream.sensor_size, idx, context)
