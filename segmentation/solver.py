@@ -240,26 +240,23 @@ def segment_normal_flow(
                  damping=cfg.lm_damping, weights=fit_w)
     predicted = np.empty((0, 4))
     n_object_candidates = 0
-    if tracked_objects is not None and m:
-        boxes = np.asarray(tracked_objects[0], dtype=np.float64).reshape(-1, 4)
-        if len(boxes):
-            predicted = motion_prediction(
-                graph.x, graph.y, graph.nx, graph.ny, boxes,
-                np.asarray(tracked_objects[1], dtype=np.float64).reshape(-1, 4), origin, 0.0,
-                cfg.prediction_margin_px, cfg.min_prediction_nodes, weights=fit_w, loss=cfg.robust_loss,
-                loss_scale_px_s=cfg.robust_scale * sigma, iterations=cfg.lm_iterations)
-            n_object_candidates = len(predicted)
-    elif previous is not None and m and previous.n_objects > 0 and previous.origin_px == origin:
+    # Objects to predict: the caller's tracks (boxes already at this window) or the previous
+    # window's objects (boxes moved here by their models over the time between the windows).
+    expected = None
+    if tracked_objects is not None:
+        expected = (np.asarray(tracked_objects[0], dtype=np.float64).reshape(-1, 4),
+                    np.asarray(tracked_objects[1], dtype=np.float64).reshape(-1, 4), 0.0)
+    elif previous is not None and previous.n_objects > 0 and previous.origin_px == origin and previous.boxes:
         ids = sorted(previous.boxes)
-        if ids:
-            dt_s = (t_ref - previous.t_ref_us) * 1e-6
-            predicted = motion_prediction(
-                graph.x, graph.y, graph.nx, graph.ny,
-                np.array([previous.boxes[k] for k in ids], dtype=np.float64),
-                previous.models[ids], origin, dt_s, cfg.prediction_margin_px,
-                cfg.min_prediction_nodes, weights=fit_w, loss=cfg.robust_loss,
-                loss_scale_px_s=cfg.robust_scale * sigma, iterations=cfg.lm_iterations)
-            n_object_candidates = len(predicted)
+        expected = (np.array([previous.boxes[k] for k in ids], dtype=np.float64), previous.models[ids],
+                    (t_ref - previous.t_ref_us) * 1e-6)
+    if expected is not None and m and len(expected[0]):
+        boxes, box_models, dt_s = expected
+        predicted = motion_prediction(
+            graph.x, graph.y, graph.nx, graph.ny, boxes, box_models, origin, dt_s,
+            cfg.prediction_margin_px, cfg.min_prediction_nodes, weights=fit_w, loss=cfg.robust_loss,
+            loss_scale_px_s=cfg.robust_scale * sigma, iterations=cfg.lm_iterations)
+        n_object_candidates = len(predicted)
     if previous is not None and len(previous.models) and previous.origin_px == origin:
         # The previous background model is a free, usually excellent candidate.
         predicted = np.concatenate([previous.models[:1], predicted])
