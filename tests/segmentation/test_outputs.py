@@ -1,0 +1,35 @@
+"""Label propagation: the bucket-grid nearest-node search against brute force."""
+
+import numpy as np
+import pytest
+
+from evseg.segmentation.outputs import nearest_node_labels
+
+
+def _brute_force(node_x, node_y, labels, x, y, limit):
+    d2 = (x[:, None] - node_x[None, :]) ** 2 + (y[:, None] - node_y[None, :]) ** 2
+    k = np.argmin(d2, axis=1)  # first minimum: ties to the lowest node index
+    near = d2[np.arange(len(x)), k] <= limit * limit
+    return np.where(near, labels[k], -1)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_nearest_node_labels_equals_brute_force(seed):
+    rng = np.random.default_rng(seed)
+    m = int(rng.integers(1, 400))
+    # Half the nodes on the pixel lattice (many exact ties), half anywhere.
+    node_x = np.concatenate([rng.integers(0, 60, m // 2), rng.uniform(-5, 65, m - m // 2)]).astype(float)
+    node_y = np.concatenate([rng.integers(0, 40, m // 2), rng.uniform(-5, 45, m - m // 2)]).astype(float)
+    labels = np.arange(m)  # a distinct label per node: the chosen node itself is checked
+    x = np.concatenate([rng.integers(-20, 80, 500), rng.uniform(-300, 300, 100)]).astype(float)
+    y = np.concatenate([rng.integers(-20, 60, 500), rng.uniform(-300, 300, 100)]).astype(float)
+    limit = float(rng.uniform(0.5, 25.0))
+    got = nearest_node_labels(node_x, node_y, labels, x, y, limit)
+    np.testing.assert_array_equal(got, _brute_force(node_x, node_y, labels, x, y, limit))
+
+
+def test_nearest_node_labels_empty_inputs():
+    assert nearest_node_labels(np.array([]), np.array([]), np.array([], dtype=int),
+                               np.array([1.0]), np.array([1.0]), 5.0).tolist() == [-1]
+    assert nearest_node_labels(np.array([1.0]), np.array([1.0]), np.array([3]),
+                               np.array([]), np.array([]), 5.0).shape == (0,)
