@@ -126,6 +126,11 @@ def _robust(z: torch.Tensor, loss: str, trunc: float) -> tuple[torch.Tensor, tor
     raise ValueError(f"unknown robust loss {loss!r}; one of {LOSSES}")
 
 
+def _q_of(p: np.ndarray) -> np.ndarray:
+    """(L, 4) linear parameters q = (rho cos theta - 1, rho sin theta, t_x, t_y) of models p."""
+    return np.column_stack([p[:, 0] * np.cos(p[:, 1]) - 1.0, p[:, 0] * np.sin(p[:, 1]), p[:, 2], p[:, 3]])
+
+
 @_fit_threads
 def fit_lm(
     x: np.ndarray,
@@ -160,11 +165,62 @@ def fit_lm(
     """
     if loss not in LOSSES:
         raise ValueError(f"unknown robust loss {loss!r}; one of {LOSSES}")
-    p = _t(np.array(models, dtype=np.float64).reshape(-1, 4))
+    p = np.array(models, dtype=np.float64).reshape(-1, 4)
     n_labels = p.shape[0]
     keep = _valid(labels, n_labels)
     if n_labels == 0 or not keep.any():
-        return p.numpy().copy()
+        return p.copy()
+    lab_np = np.asarray(labels, dtype=np.int64)[keep]
+    lab = torch.from_numpy(lab_np)
+    xs, ys, nxs, nys = (np.asarray(a, dtype=np.float64)[keep] for a in (x, y, nx, ny))
+    w0 = np.ones(len(xs)) if weights is None else np.asarray(weights, dtype=np.float64)[keep]
+    norm = np.hypot(nxs, nys)
+    hx, hy = nxs / norm, nys / norm
+    Jq = _t(np.column_stack([hx * xs + hy * ys, hy * xs - hx * ys, hx, hy]))  # (M, 4)
+    JJ = (Jq[:, :, None] * Jq[:, None, :]).reshape(-1, 16)
+    N, W0 = _t(norm), _t(w0)
+    lab_col = lab[:, None]
+    inv_scale = 1.0 / float(loss_scale_px_s)
+
+    # Per-node work is torch (one matmul gives every node's residual under every label, one
+    # index_add the normal equations of all labels); the per-label 4x4 algebra is numpy, where
+    # an op on a (L, 4, 4) array costs ~1 us instead of torch's ~7 us dispatch.
+    def evaluate(pp: np.ndarray):
+        r = (Jq @ _t(_q_of(pp)).T).gather(1, lab_col)[:, 0] - N
+        wr, cost = _robust(r * inv_scale, loss, truncation)
+        return r, wr, torch.zeros(n_labels, dtype=torch.float64).index_add_(0, lab, W0 * cost).numpy()
+
+    r, wr, cost = evaluate(p)
+    mu = np.full(n_labels, float(damping))
+    eye = np.eye(4)
+    for _ in range(iterations):
+        w = W0 * wr
+        # One accumulation for H_q (16 entries) and g_q (4) of every label.
+        acc20 = torch.zeros(n_labels, 20, dtype=torch.float64).index_add_(
+            0, lab, torch.cat([JJ * w[:, None], Jq * (w * r)[:, None]], dim=1)).numpy()
+        Hq, gq = acc20[:, :16].reshape(-1, 4, 4), acc20[:, 16:, None]
+        c, sn = np.cos(p[:, 1]), np.sin(p[:, 1])
+        T = np.zeros((n_labels, 4, 4))  # T = dq / d(rho, theta, t_x, t_y)
+        T[:, 0, 0], T[:, 0, 1], T[:, 1, 0], T[:, 1, 1] = c, -p[:, 0] * sn, sn, p[:, 0] * c
+        T[:, 2, 2] = T[:, 3, 3] = 1.0
+        Tt = T.transpose(0, 2, 1)
+        H = Tt @ Hq @ T
+        g = (Tt @ gq)[:, :, 0]
+        d = np.diagonal(H, axis1=1, axis2=2)
+        damp = mu[:, None] * d + 1e-12 * (d.mean(axis=1, keepdims=True) + 1.0)
+        step = -np.linalg.solve(H + damp[:, :, None] * eye, g[:, :, None])[:, :, 0]
+        trial = p + step
+        r_t, wr_t, cost_t = evaluate(trial)
+        acc = cost_t < cost
+        p = np.where(acc[:, None], trial, p)
+        node_acc = torch.from_numpy(acc)[lab]
+        r = torch.where(node_acc, r_t, r)
+        wr = torch.where(node_acc, wr_t, wr)
+        cost = np.where(acc, cost_t, cost)
+        mu = np.clip(np.where(acc, mu * 0.3, mu * 10.0), 1e-9, 1e9)
+        if float((np.abs(step) / (np.abs(p) + 1.0)).max()) < step_tol:
+            break
+    return p
     lab = torch.from_numpy(np.asarray(labels, dtype=np.int64)[keep])
     xs, ys, nxs, nys = (np.asarray(a, dtype=np.float64)[keep] for a in (x, y, nx, ny))
     w0 = np.ones(len(xs)) if weights is None else np.asarray(weights, dtype=np.float64)[keep]
