@@ -216,3 +216,58 @@ def motion_prediction(
                     np.asarray(ny)[node], box, models[ok], weights=w, loss=loss,
                     loss_scale_px_s=loss_scale_px_s, iterations=iterations)
     return fitted
+
+
+def consensus_models(
+    x: np.ndarray,
+    y: np.ndarray,
+    nx: np.ndarray,
+    ny: np.ndarray,
+    region: np.ndarray,
+    n_regions: int,
+    inlier_px_s: float,
+    n_hypotheses: int = 64,
+    seed: int = 0,
+) -> np.ndarray:
+    """One affine model per region by sample consensus over minimal 4-node samples.
+
+    A region of unexplained nodes (round 0b of the solver) can hold as many stray flows as flows
+    of the object it outlines; a least-squares or even a Cauchy fit started from least squares
+    then lands between the two. Each hypothesis here solves the 4 x 4 linear system of 4 random
+    nodes of the region exactly (the residual is linear in q = (a, b, t_x, t_y), see
+    :mod:`.motion_model`); the one with the most nodes within ``inlier_px_s`` of their normal
+    flow wins. All hypotheses of all regions are solved and scored in batched numpy calls.
+
+    Args:
+        x, y: (M,) px from the model origin. nx, ny: (M,) normal flow, px/s.
+        region: (M,) int region id in [0, n_regions), -1 = not in any region.
+        inlier_px_s: residual (|n|-normalised, px/s) under which a node supports a hypothesis.
+        n_hypotheses: minimal samples per region. seed: of the sampler (deterministic).
+    Returns:
+        (n_regions, 4) models (rho, theta, t_x, t_y); a region under 4 nodes or without one
+        solvable sample gets the identity model (1, 0, 0, 0).
+    """
+    from evseg.segmentation.motion_model import models_from_linear
+
+    x, y, nx, ny = (np.asarray(a, dtype=np.float64) for a in (x, y, nx, ny))
+    region = np.asarray(region, dtype=np.int64)
+    norm = np.maximum(np.hypot(nx, ny), 1e-12)
+    hx, hy = nx / norm, ny / norm
+    J = np.column_stack([hx * x + hy * y, hy * x - hx * y, hx, hy])  # residual = J q - |n|
+    rng = np.random.default_rng(seed)
+    out = np.tile([1.0, 0.0, 0.0, 0.0], (n_regions, 1))
+    for r in range(n_regions):  # a handful of regions; the hypotheses inside are batched
+        members = np.flatnonzero(region == r)
+        if len(members) < 4:
+            continue
+        pick = members[rng.integers(0, len(members), size=(n_hypotheses, 4))]
+        A, b = J[pick], norm[pick]  # (H, 4, 4), (H, 4)
+        det = np.linalg.det(A)
+        ok = np.abs(det) > 1e-9 * np.abs(A).max(axis=(1, 2)) ** 4
+        if not ok.any():
+            continue
+        q = np.linalg.solve(A[ok], b[ok, :, None])[:, :, 0]  # (H', 4)
+        res = J[members] @ q.T - norm[members, None]  # (n, H')
+        support = (np.abs(res) <= inlier_px_s).sum(axis=0)
+        out[r] = models_from_linear(q[np.argmax(support)][None])[0]
+    return out

@@ -17,10 +17,13 @@ Order of the steps (our choice where the paper is silent):
    fit turns it into that object's full motion before the label cost can delete it.
    Round 0b: the nodes that no fitted candidate explains (data cost at the truncation) that
    form connected regions of the graph (at least ``min_object_nodes``; the ``n_resampled``
-   largest) each give one more candidate, fitted to the region like a motion-prediction box
-   (linear solution, then LM): a small object whose translations drown among the background's
-   variations, or whose 1-rings are too mixed to vote (a small spinning ball), is exactly such
-   a region, while scattered outlier flows are not.
+   largest) each give one more candidate: the best of 64 exact fits to 4 random nodes of the
+   region (sample consensus, :func:`.initialization.consensus_models`: such a region can hold
+   as many stray flows as object flows, which drag a least-squares start), then LM on the
+   region: a small object whose translations drown among the background's variations, or whose
+   1-rings are too mixed to vote (a small spinning ball), is exactly such a region, while
+   scattered outlier flows are not (flows that contradict a 1-ring moving as one are left out
+   of the regions).
 4. Rounds 1..max_rounds: alpha-expansion from the current labeling, drop empty labels, LM refit,
    merge near-duplicate models (only when that lowers the energy);
    a refitted model replaces the old one only if it lowers its label's data energy, so the
@@ -47,9 +50,9 @@ from evseg.errors import EventDataError
 from evseg.segmentation.config import SegmentationConfig
 from evseg.segmentation.energy import data_costs, energy, potts_weights
 from evseg.segmentation.expansion import alpha_expansion
-from evseg.segmentation.fitting import fit_linear, fit_lm
+from evseg.segmentation.fitting import fit_lm
 from evseg.segmentation.initialization import (
-    fast_sampling, local_translations, motion_prediction, ring_agreement,
+    consensus_models, fast_sampling, local_translations, motion_prediction, ring_agreement,
 )
 from evseg.segmentation.motion_model import flow_field, model_change_px_s
 from evseg.segmentation.outputs import (
@@ -218,6 +221,7 @@ def segment_normal_flow(
     # Each node's vote for fast sampling: its 1-ring translation ('local', well-conditioned
     # rings only) or its normal flow ('normal').
     vote_x, vote_y, voting = graph.nx, graph.ny, np.ones(m, dtype=bool)
+    suspect = np.zeros(m, dtype=bool)  # flows that contradict a 1-ring moving as one
     conf, node_scale = _uncertainty_terms(cfg, graph, a.get("uncertainty"), sigma)
     if cfg.sampling_flow == "local" and m:
         vote_x, vote_y, ring_ok = local_translations(graph.nx, graph.ny, graph.edges, sigma)
@@ -233,6 +237,7 @@ def segment_normal_flow(
             own = sigma if node_scale is None else sigma * node_scale
             factor = 1.0 / (1.0 + (r_self / (cfg.truncation * own)) ** 2)
             conf = conf * np.where(ring_ok & (agree >= 0.5), factor, 1.0)
+            suspect = ring_ok & (agree >= 0.5) & (np.abs(r_self) > cfg.truncation * own)
     # Fitting weight: the confidence, and (sigma / sigma_k)^2 where a node has its own scale.
     fit_w = conf if node_scale is None else conf / node_scale**2
     lm_kw = dict(loss=cfg.robust_loss, loss_scale_px_s=cfg.robust_scale * sigma,
@@ -288,13 +293,14 @@ def segment_normal_flow(
                                                  graph.edges, edge_w, cfg.lambda_m)
         if cfg.n_resampled > 0:
             # Round 0b: regions no fitted model explains (see module docstring).
-            lost = data[ar, labels] >= 0.99 * cfg.truncation ** 2 * conf
+            # Likely outliers are unexplained by every model but form no region of their own.
+            lost = (data[ar, labels] >= 0.99 * cfg.truncation ** 2 * conf) & ~suspect
             region = _unexplained_regions(lost, graph.edges, cfg.min_object_nodes, cfg.n_resampled)
             n_extra = int(region.max()) + 1 if len(region) else 0
             if n_extra:
                 keep = region >= 0
-                start = fit_linear(xr[keep], yr[keep], graph.nx[keep], graph.ny[keep], region[keep],
-                                   n_extra, weights=fit_w[keep])
+                start = consensus_models(xr[keep], yr[keep], graph.nx[keep], graph.ny[keep],
+                                         region[keep], n_extra, cfg.truncation * sigma)
                 extra = fit_lm(xr[keep], yr[keep], graph.nx[keep], graph.ny[keep], region[keep],
                                start, **{**lm_kw, "weights": fit_w[keep]})
                 models = np.concatenate([models, extra])

@@ -108,3 +108,33 @@ def test_motion_prediction_fits_the_object_in_its_moved_box():
     none = motion_prediction(x, y, nx, ny, np.array([[200.0, 200.0, 210.0, 210.0]]), prev_model,
                              (0.0, 0.0), 0.01, 0.0, 8)
     assert none.shape == (0, 4)
+
+
+def test_consensus_models_recover_object_among_as_many_stray_flows():
+    from evseg.segmentation.initialization import consensus_models
+    from evseg.segmentation.motion_model import normal_flow_of
+
+    rng = np.random.default_rng(5)
+    true = np.array([[1.02, -0.2, 680.0, -4.0], [0.97, 0.05, -120.0, 60.0]])
+    n = 40
+    region = np.repeat([0, 1], n)
+    x = rng.uniform(-20, 20, 2 * n) + np.where(region == 0, -60.0, 60.0)
+    y = rng.uniform(-20, 20, 2 * n)
+    ang = rng.uniform(0, 2 * np.pi, 2 * n)
+    nx, ny = normal_flow_of(true, region, x, y, np.cos(ang), np.sin(ang))
+    # Half of each region's flows replaced by random vectors: a least-squares start fails here.
+    bad = np.concatenate([rng.choice(n, n // 2, replace=False), n + rng.choice(n, n // 2, replace=False)])
+    nx, ny = nx.copy(), ny.copy()
+    nx[bad], ny[bad] = rng.uniform(-700, 700, len(bad)), rng.uniform(-700, 700, len(bad))
+    got = consensus_models(x, y, nx, ny, region, 2, inlier_px_s=1.0)
+    # A sample of 4 inliers solves the noise-free system exactly (float round-off only).
+    np.testing.assert_allclose(got, true, rtol=1e-6, atol=1e-6)
+    # Deterministic: same seed, same models.
+    np.testing.assert_array_equal(got, consensus_models(x, y, nx, ny, region, 2, inlier_px_s=1.0))
+
+
+def test_consensus_models_tiny_region_gets_identity():
+    from evseg.segmentation.initialization import consensus_models
+
+    got = consensus_models(np.zeros(3), np.arange(3.0), np.ones(3), np.zeros(3), np.zeros(3, int), 1, 1.0)
+    np.testing.assert_array_equal(got, [[1.0, 0.0, 0.0, 0.0]])
