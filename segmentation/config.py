@@ -115,6 +115,11 @@ class SegmentationConfig:
     """IRLS weights of the fitter: 'none', 'huber', 'cauchy' or 'truncated' (at tau)."""
     robust_scale: float = 1.0
     """Scale of the robust loss in units of sigma (the Huber / Cauchy constant)."""
+    affine_prior_px: float = 0.0
+    """r0 (px): the fits charge a label's divergence and rotation rates as if each of its nodes
+    had an extra residual of |(rho cos - 1, rho sin)| * r0 px/s (see
+    :func:`.fitting.fit_lm`), so a small object's few noisy flows cannot buy a wild zoom or
+    spin that then misleads motion prediction; 0 = no prior."""
 
     # --- initialization ----------------------------------------------------------------
     n_sampled: int = 12
@@ -168,7 +173,7 @@ class SegmentationConfig:
         _check_choice("uncertainty_use", self.uncertainty_use, UNCERTAINTY_USES)
         for name in ("n_resampled", "cell_px", "min_flow_px_s", "residual_scale_px_s", "residual_scale_rel",
                      "lambda_p", "lambda_m", "lm_damping", "mask_dilate_px", "merge_tol", "split_gap_px",
-                     "uncertainty_gain"):
+                     "uncertainty_gain", "affine_prior_px"):
             if getattr(self, name) < 0:
                 raise ConfigError(f"SegmentationConfig.{name} must be >= 0, got {getattr(self, name)}")
         for name in ("truncation", "uncertainty_scale", "sampling_bin", "max_object_extent", "edge_scale_px", "robust_scale",

@@ -186,6 +186,7 @@ def motion_prediction(
     loss: str = "cauchy",
     loss_scale_px_s: float = 1.0,
     iterations: int = 6,
+    affine_prior_px: float = 0.0,
 ) -> np.ndarray:
     """Candidate models of the previous window's objects, fitted in their predicted boxes.
 
@@ -214,7 +215,8 @@ def motion_prediction(
     w = None if weights is None else np.asarray(weights, dtype=np.float64)[node]
     fitted = fit_lm(x[node] - origin_px[0], y[node] - origin_px[1], np.asarray(nx)[node],
                     np.asarray(ny)[node], box, models[ok], weights=w, loss=loss,
-                    loss_scale_px_s=loss_scale_px_s, iterations=iterations)
+                    loss_scale_px_s=loss_scale_px_s, iterations=iterations,
+                    affine_prior_px=affine_prior_px)
     return fitted
 
 

@@ -242,7 +242,7 @@ def segment_normal_flow(
     fit_w = conf if node_scale is None else conf / node_scale**2
     lm_kw = dict(loss=cfg.robust_loss, loss_scale_px_s=cfg.robust_scale * sigma,
                  truncation=cfg.truncation / cfg.robust_scale, iterations=cfg.lm_iterations,
-                 damping=cfg.lm_damping, weights=fit_w)
+                 damping=cfg.lm_damping, weights=fit_w, affine_prior_px=cfg.affine_prior_px)
     predicted = np.empty((0, 4))
     n_object_candidates = 0
     # Objects to predict: the caller's tracks (boxes already at this window) or the previous
@@ -260,7 +260,8 @@ def segment_normal_flow(
         predicted = motion_prediction(
             graph.x, graph.y, graph.nx, graph.ny, boxes, box_models, origin, dt_s,
             cfg.prediction_margin_px, cfg.min_prediction_nodes, weights=fit_w, loss=cfg.robust_loss,
-            loss_scale_px_s=cfg.robust_scale * sigma, iterations=cfg.lm_iterations)
+            loss_scale_px_s=cfg.robust_scale * sigma, iterations=cfg.lm_iterations,
+            affine_prior_px=cfg.affine_prior_px)
         n_object_candidates = len(predicted)
     if previous is not None and len(previous.models) and previous.origin_px == origin:
         # The previous background model is a free, usually excellent candidate.
