@@ -104,7 +104,7 @@ def grid_nearest(node_x, node_y, qx, qy, max_distance, bucket):  # pragma: no co
                 if gy < 0 or gy >= gh:
                     continue
                 edge_row = gy == cy - r or gy == cy + r
-                step = 1 if edge_row else 2 * r
+                step = 1 if edge_row else 2 * r  # inner rows: only the ring's two ends
                 gx = cx - r
                 while gx <= cx + r:
                     if 0 <= gx < gw:
@@ -117,8 +117,6 @@ def grid_nearest(node_x, node_y, qx, qy, max_distance, bucket):  # pragma: no co
                             if d2 < best or (d2 == best and k < best_k):
                                 best = d2
                                 best_k = k
-                    if step == 0:
-                        break
                     gx += step
             # Ring r + 1 and beyond lie at least r * bucket px from the query.
             if best_k >= 0 and best <= (r * bucket) * (r * bucket):

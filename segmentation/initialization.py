@@ -238,7 +238,7 @@ def consensus_models(
     then lands between the two. Each hypothesis here solves the 4 x 4 linear system of 4 random
     nodes of the region exactly (the residual is linear in q = (a, b, t_x, t_y), see
     :mod:`.motion_model`); the one with the most nodes within ``inlier_px_s`` of their normal
-    flow wins. All hypotheses of all regions are solved and scored in batched numpy calls.
+    flow wins. A region's hypotheses are solved and scored in batched numpy calls.
 
     Args:
         x, y: (M,) px from the model origin. nx, ny: (M,) normal flow, px/s.
