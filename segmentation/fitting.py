@@ -30,6 +30,8 @@ import functools
 import numpy as np
 import torch
 
+from evseg.segmentation.motion_model import residual_jacobian
+
 LOSSES = ("none", "huber", "cauchy", "truncated")
 
 FIT_THREADS = 1
@@ -182,9 +184,8 @@ def fit_lm(
     lab = torch.from_numpy(lab_np)
     xs, ys, nxs, nys = (np.asarray(a, dtype=np.float64)[keep] for a in (x, y, nx, ny))
     w0 = np.ones(len(xs)) if weights is None else np.asarray(weights, dtype=np.float64)[keep]
-    norm = np.hypot(nxs, nys)
-    hx, hy = nxs / norm, nys / norm
-    Jq = _t(np.column_stack([hx * xs + hy * ys, hy * xs - hx * ys, hx, hy]))  # (M, 4)
+    Jq_np, norm = residual_jacobian(xs, ys, nxs, nys)
+    Jq = _t(Jq_np)  # (M, 4): r = Jq q - |n|, linear in q
     JJ = (Jq[:, :, None] * Jq[:, None, :]).reshape(-1, 16)
     N, W0 = _t(norm), _t(w0)
     lab_col = lab[:, None]

@@ -28,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 
 from evseg.segmentation.fitting import fit_lm
-from evseg.segmentation.motion_model import flow_field
+from evseg.segmentation.motion_model import flow_field, models_from_linear, residual_jacobian
 
 
 def local_translations(
@@ -249,13 +249,8 @@ def consensus_models(
         (n_regions, 4) models (rho, theta, t_x, t_y); a region under 4 nodes or without one
         solvable sample gets the identity model (1, 0, 0, 0).
     """
-    from evseg.segmentation.motion_model import models_from_linear
-
-    x, y, nx, ny = (np.asarray(a, dtype=np.float64) for a in (x, y, nx, ny))
     region = np.asarray(region, dtype=np.int64)
-    norm = np.maximum(np.hypot(nx, ny), 1e-12)
-    hx, hy = nx / norm, ny / norm
-    J = np.column_stack([hx * x + hy * y, hy * x - hx * y, hx, hy])  # residual = J q - |n|
+    J, norm = residual_jacobian(x, y, nx, ny)  # residual = J q - |n|
     rng = np.random.default_rng(seed)
     out = np.tile([1.0, 0.0, 0.0, 0.0], (n_regions, 1))
     for r in range(n_regions):  # a handful of regions; the hypotheses inside are batched

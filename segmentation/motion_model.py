@@ -73,6 +73,24 @@ def normal_flow_residuals(
     return (nx / norm)[:, None] * ux + (ny / norm)[:, None] * uy - norm[:, None]
 
 
+def residual_jacobian(
+    x: np.ndarray, y: np.ndarray, nx: np.ndarray, ny: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The normalised residual as a linear function of q = (a, b, t_x, t_y) (see
+    :func:`linear_parameters`): r = J q - |n|.
+
+    Args:
+        x, y: (N,) px from the origin. nx, ny: (N,) normal flow px/s, |n| > 0.
+    Returns:
+        ``(J, norm)``: J (N, 4) rows [n_hat . (x, y), n_hat . (-y, x), n_hat_x, n_hat_y]
+        (px, px, 1, 1) and |n| (N,) px/s.
+    """
+    x, y, nx, ny = (np.asarray(a, dtype=np.float64) for a in (x, y, nx, ny))
+    norm = np.hypot(nx, ny)
+    hx, hy = nx / norm, ny / norm
+    return np.column_stack([hx * x + hy * y, hy * x - hx * y, hx, hy]), norm
+
+
 def raw_residuals(
     models: np.ndarray, x: np.ndarray, y: np.ndarray, nx: np.ndarray, ny: np.ndarray
 ) -> np.ndarray:

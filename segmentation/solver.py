@@ -235,9 +235,10 @@ def segment_normal_flow(
             r_self = (graph.nx * vote_x + graph.ny * vote_y) / norm - norm
             agree = ring_agreement(graph.nx, graph.ny, graph.edges, vote_x, vote_y, sigma)
             own = sigma if node_scale is None else sigma * node_scale
+            coherent = ring_ok & (agree >= 0.5)
             factor = 1.0 / (1.0 + (r_self / (cfg.truncation * own)) ** 2)
-            conf = conf * np.where(ring_ok & (agree >= 0.5), factor, 1.0)
-            suspect = ring_ok & (agree >= 0.5) & (np.abs(r_self) > cfg.truncation * own)
+            conf = conf * np.where(coherent, factor, 1.0)
+            suspect = coherent & (np.abs(r_self) > cfg.truncation * own)
     # Fitting weight: the confidence, and (sigma / sigma_k)^2 where a node has its own scale.
     fit_w = conf if node_scale is None else conf / node_scale**2
     lm_kw = dict(loss=cfg.robust_loss, loss_scale_px_s=cfg.robust_scale * sigma,
