@@ -32,6 +32,7 @@ from dataclasses import dataclass
 import maxflow
 import numpy as np
 
+from evseg.segmentation._kernels import expansion_terms
 from evseg.segmentation.energy import energy
 
 
@@ -53,35 +54,34 @@ def expansion_move(
     Returns:
         (M,) int64 labels after the move (each node keeps its label or takes alpha).
     """
-    labels = np.asarray(labels, dtype=np.int64)
+    labels, data, edges, edge_w = _as_arrays(labels, data, edges, edge_w)
+    terms = expansion_terms(labels, int(alpha), data, edges, edge_w)
+    return _cut(labels, int(alpha), terms, np.asarray(label_costs, dtype=np.float64))
+
+
+def _as_arrays(labels, data, edges, edge_w):
+    """The dtypes and layouts the compiled move terms expect."""
+    return (np.ascontiguousarray(labels, dtype=np.int64), np.ascontiguousarray(data, dtype=np.float64),
+            np.ascontiguousarray(np.asarray(edges, dtype=np.int64).reshape(-1, 2)),
+            np.ascontiguousarray(edge_w, dtype=np.float64))
+
+
+def _cut(labels: np.ndarray, alpha: int, terms: tuple, label_costs: np.ndarray) -> np.ndarray:
+    """Build the move's graph from its terms (:func:`._kernels.expansion_terms`), cut it."""
+    diff, pair_i, pair_j, pair_w, bound = terms
     m = len(labels)
-    ar = np.arange(m)
-    cost0 = data[ar, labels]
-    cost1 = data[:, alpha].astype(np.float64, copy=True)
-    g = maxflow.Graph[float]()
+    g = maxflow.Graph[float](m + 8, len(pair_i) + m)
     nodes = g.add_nodes(m)
-    if len(edges):
-        i, j = edges[:, 0], edges[:, 1]
-        li, lj = labels[i], labels[j]
-        e00 = edge_w * (li != lj)
-        e01 = edge_w * (li != alpha)
-        e10 = edge_w * (lj != alpha)
-        # Unary parts of the decomposition go to cost(s=1) of the nodes.
-        cost1 += np.bincount(i, weights=e10 - e00, minlength=m)
-        cost1 -= np.bincount(j, weights=e10, minlength=m)
-        pair = e01 + e10 - e00
-        nz = pair > 0
-        if nz.any():
-            g.add_edges(i[nz], j[nz], pair[nz], np.zeros(int(nz.sum())))
-    diff = cost1 - cost0
+    if len(pair_i):
+        g.add_edges(pair_i, pair_j, pair_w, np.zeros(len(pair_i)))
     # A node in the source segment (s=0) pays its sink capacity, in the sink segment its source one.
     g.add_grid_tedges(nodes, np.maximum(diff, 0.0), np.maximum(-diff, 0.0))
 
     n_labels = len(label_costs)
     used = np.bincount(labels, minlength=n_labels) > 0
     others = np.flatnonzero(used & (label_costs > 0) & (np.arange(n_labels) != alpha))
-    if len(others) and len(edges):
-        others = others[_label_cost_can_matter(labels, alpha, data, edges, edge_w, label_costs, others)]
+    if len(others):
+        others = others[_label_cost_can_matter(labels, bound, label_costs, others)]
     if len(others):
         aux = g.add_nodes(len(others))
         h = label_costs[others]
@@ -98,24 +98,18 @@ def expansion_move(
 
 
 def _label_cost_can_matter(
-    labels: np.ndarray, alpha: int, data: np.ndarray, edges: np.ndarray, edge_w: np.ndarray,
-    label_costs: np.ndarray, candidates: np.ndarray,
+    labels: np.ndarray, bound: np.ndarray, label_costs: np.ndarray, candidates: np.ndarray,
 ) -> np.ndarray:
     """Which of the ``candidates`` labels need their label-cost node in this move (bool mask).
 
     Label l's auxiliary node only rewards moves that switch *all* of l's nodes to alpha.
-    Switching them costs at least sum_{k in l} d_k, d_k = D[k, alpha] - D[k, l] - w_k, with
-    w_k the weight of the edges at k that are cut now (the most Potts energy k's switch can
-    remove). If that sum is >= h_l, removing l never pays, and a minimiser of the energy without
-    l's node is also a minimiser with it, so the node (joined to every node of l: a star that
-    made each max-flow ~6x slower) can be left out and the move stays optimal.
+    Switching them costs at least sum_{k in l} d_k, d_k = ``bound[k]`` = D[k, alpha] - D[k, l]
+    - w_k, with w_k the weight of the edges at k that are cut now (the most Potts energy k's
+    switch can remove). If that sum is >= h_l, removing l never pays, and a minimiser of the
+    energy without l's node is also a minimiser with it, so the node (joined to every node of
+    l: a star that made each max-flow ~6x slower) can be left out and the move stays optimal.
     """
-    i, j = edges[:, 0], edges[:, 1]
-    cut = edge_w * (labels[i] != labels[j])
-    m = len(labels)
-    w_k = np.bincount(i, weights=cut, minlength=m) + np.bincount(j, weights=cut, minlength=m)
-    d = data[np.arange(m), alpha] - data[np.arange(m), labels] - w_k
-    per_label = np.bincount(labels, weights=d, minlength=len(label_costs))
+    per_label = np.bincount(labels, weights=bound, minlength=len(label_costs))
     return per_label[candidates] < label_costs[candidates]
 
 
@@ -129,27 +123,35 @@ class ExpansionResult:
     n_accepted: int
 
 
-def move_cannot_improve(
-    labels: np.ndarray, alpha: int, data: np.ndarray, cut_weight: np.ndarray, label_costs: np.ndarray
-) -> bool:
+def move_cannot_improve(labels: np.ndarray, alpha: int, bound: np.ndarray, label_costs: np.ndarray) -> bool:
     """Exact sufficient test that the expansion on ``alpha`` cannot lower the energy.
 
-    For a set S of nodes switching to alpha, the Potts energy can drop at most by the weights
-    of the edges cut now and touching S (``cut_weight`` per node, (M,)), and label costs only
-    drop for labels whose nodes all switch. With d_k = D[k, alpha] - D[k, L_k] - cut_weight[k],
-    if d_k > 0 for every node not labelled alpha and sum_{k in l} d_k >= h_l for every label l,
-    every S raises the energy, so the max-flow can be skipped.
+    ``bound[k]`` = D[k, alpha] - D[k, L_k] - (weight of the edges cut now at k), as
+    :func:`move_bound` gives it. Switching a set S of nodes to alpha changes the Potts energy
+    by at least minus the weight of the cut edges touching S, saves h_l only for labels l whose
+    nodes all switch, and costs h_alpha if alpha is not in use. So the change is at least
+    sum_l min(sum_{k in l} bound_k - h_l, sum_{k in l} min(bound_k, 0)) (+ h_alpha if alpha is
+    unused); when that is >= 0 no move lowers the energy and the max-flow can be skipped.
     """
+    labels = np.asarray(labels, dtype=np.int64)
     rows = np.flatnonzero(labels != alpha)
     if len(rows) == 0:
         return True
-    lab = labels[rows]
-    d = data[rows, alpha] - data[rows, lab] - cut_weight[rows]
-    if not np.all(d > 0):
-        return False
-    per_label = np.bincount(lab, weights=d, minlength=len(label_costs))
-    present = np.bincount(lab, minlength=len(label_costs)) > 0
-    return bool(np.all(per_label[present] >= label_costs[present]))
+    n_labels = len(label_costs)
+    lab, d = labels[rows], np.asarray(bound, dtype=np.float64)[rows]
+    whole = np.bincount(lab, weights=d, minlength=n_labels) - label_costs
+    part = np.bincount(lab, weights=np.minimum(d, 0.0), minlength=n_labels)
+    present = np.bincount(lab, minlength=n_labels) > 0
+    least = float(np.minimum(whole, part)[present].sum())
+    if len(rows) == len(labels):  # alpha not in use: any switch pays its label cost
+        least += float(label_costs[alpha])
+    return least >= 0.0
+
+
+def move_bound(labels: np.ndarray, alpha: int, data: np.ndarray, edges: np.ndarray, edge_w: np.ndarray) -> np.ndarray:
+    """(M,) D[k, alpha] - D[k, L_k] - (weight of the edges cut now at k), for :func:`move_cannot_improve`."""
+    labels, data, edges, edge_w = _as_arrays(labels, data, edges, edge_w)
+    return expansion_terms(labels, int(alpha), data, edges, edge_w)[4]
 
 
 def alpha_expansion(
@@ -171,6 +173,8 @@ def alpha_expansion(
         :class:`ExpansionResult`; its energy never exceeds that of the start labeling.
     """
     cur = np.array(labels, dtype=np.int64)
+    _, data, edges, edge_w = _as_arrays(cur, data, edges, edge_w)
+    label_costs = np.asarray(label_costs, dtype=np.float64)
     e_cur = energy(cur, data, edges, edge_w, label_costs)
     n_labels = data.shape[1]
     order = np.arange(n_labels) if order is None else np.asarray(order, dtype=np.int64)
@@ -178,15 +182,10 @@ def alpha_expansion(
     for _ in range(max_cycles):
         improved = False
         for alpha in order:
-            if len(edges):
-                cut = edge_w * (cur[edges[:, 0]] != cur[edges[:, 1]])
-                cut_weight = (np.bincount(edges[:, 0], weights=cut, minlength=len(cur))
-                              + np.bincount(edges[:, 1], weights=cut, minlength=len(cur)))
-            else:
-                cut_weight = np.zeros(len(cur))
-            if move_cannot_improve(cur, int(alpha), data, cut_weight, label_costs):
+            terms = expansion_terms(cur, int(alpha), data, edges, edge_w)
+            if move_cannot_improve(cur, int(alpha), terms[4], label_costs):
                 continue
-            new = expansion_move(cur, int(alpha), data, edges, edge_w, label_costs)
+            new = _cut(cur, int(alpha), terms, label_costs)
             n_moves += 1
             if np.array_equal(new, cur):
                 continue

@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from evseg.segmentation.energy import energy
-from evseg.segmentation.expansion import alpha_expansion, expansion_move, move_cannot_improve
+from evseg.segmentation.expansion import alpha_expansion, expansion_move, move_bound, move_cannot_improve
 from evseg.segmentation.preprocessing import delaunay_edges
 
 
@@ -107,7 +107,9 @@ def test_skip_test_is_sound(seed, alpha):
     labels, data, edges, w, h = random_problem(seed)
     cut = w * (labels[edges[:, 0]] != labels[edges[:, 1]])
     cw = np.bincount(edges[:, 0], cut, len(labels)) + np.bincount(edges[:, 1], cut, len(labels))
-    if move_cannot_improve(labels, alpha, data, cw, h):
+    bound = data[:, alpha] - data[np.arange(len(labels)), labels] - cw
+    np.testing.assert_allclose(move_bound(labels, alpha, data, edges, w), bound, atol=1e-12)
+    if move_cannot_improve(labels, alpha, bound, h):
         _, best_e = brute_force_move(labels, alpha, data, edges, w, h)
         assert best_e >= energy(labels, data, edges, w, h) - 1e-9
 
@@ -126,4 +128,20 @@ def test_skip_test_triggers_when_current_labels_are_clearly_best():
     data[np.arange(10), labels] = 0.0
     cut = w * (labels[edges[:, 0]] != labels[edges[:, 1]])
     cw = np.bincount(edges[:, 0], cut, 10) + np.bincount(edges[:, 1], cut, 10)
-    assert move_cannot_improve(labels, 0, data, cw, h)
+    assert move_cannot_improve(labels, 0, data[:, 0] - data[np.arange(10), labels] - cw, h)
+
+
+@pytest.mark.parametrize("h_alpha, skipped", [(10.0, True), (0.5, False)])
+def test_skip_test_counts_the_label_cost_of_an_unused_alpha(h_alpha, skipped):
+    # Label 2 is nobody's: switching node 0 to it saves 1 of data (and no Potts: a lone
+    # edge-free gain), so the move pays only when h_2 < 1.
+    labels = np.array([0, 0, 1, 1])
+    edges = np.array([[0, 1], [1, 2], [2, 3]])
+    w = np.array([0.0, 0.5, 0.5])
+    data = np.array([[2.0, 5.0, 1.0], [0.0, 5.0, 5.0], [5.0, 0.0, 5.0], [5.0, 0.0, 5.0]])
+    h = np.array([1.0, 1.0, h_alpha])
+    bound = move_bound(labels, 2, data, edges, w)
+    assert move_cannot_improve(labels, 2, bound, h) is skipped
+    _, best_e = brute_force_move(labels, 2, data, edges, w, h)
+    improves = best_e < energy(labels, data, edges, w, h) - 1e-9
+    assert improves is not skipped
