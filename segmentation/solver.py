@@ -52,7 +52,7 @@ from evseg.segmentation.energy import data_costs, energy, potts_weights
 from evseg.segmentation.expansion import alpha_expansion
 from evseg.segmentation.fitting import fit_lm
 from evseg.segmentation.initialization import (
-    consensus_models, fast_sampling, local_translations, motion_prediction, ring_agreement,
+    consensus_models, fast_sampling, local_translations, motion_prediction, ring_agreement, ring_noise,
 )
 from evseg.segmentation.motion_model import flow_field, model_change_px_s
 from evseg.segmentation.outputs import (
@@ -222,6 +222,8 @@ def segment_normal_flow(
     # rings only) or its normal flow ('normal').
     vote_x, vote_y, voting = graph.nx, graph.ny, np.ones(m, dtype=bool)
     suspect = np.zeros(m, dtype=bool)  # flows that contradict a 1-ring moving as one
+    if cfg.residual_scale_noise > 0 and m:
+        sigma = max(sigma, cfg.residual_scale_noise * ring_noise(graph.nx, graph.ny, graph.edges, sigma))
     conf, node_scale = _uncertainty_terms(cfg, graph, a.get("uncertainty"), sigma)
     if cfg.sampling_flow == "local" and m:
         vote_x, vote_y, ring_ok = local_translations(graph.nx, graph.ny, graph.edges, sigma)

@@ -76,9 +76,14 @@ def test_tracked_objects_supply_candidates_fast_sampling_does_not():
     the object its candidate; with one sampled candidate (the background's) and no track the
     object cannot be found."""
     s = synthetic_scene(n_flows=2500, n_objects=1, seed=4)
-    cfg = SegmentationConfig(n_sampled=1, n_sampled_with_prediction=1, n_resampled=0)
+    # A coarse residual scale (wide sampling bins) makes the background's translations the
+    # one sampled mode; with the default fine scale this spinning background spreads over
+    # many bins and the object's translation would be the mode.
+    cfg = SegmentationConfig(n_sampled=1, n_sampled_with_prediction=1, n_resampled=0,
+                             residual_scale_rel=0.2, residual_scale_noise=0.0)
     alone = segment_normal_flow(s.x, s.y, s.t, s.nx, s.ny, config=cfg, sensor_size=s.sensor_size)
     assert alone.n_objects == 0
+    np.testing.assert_allclose(alone.models[0], s.models[0], rtol=1e-3, atol=0.5)
     on = s.label == 1
     box = np.array([[s.x[on].min(), s.y[on].min(), s.x[on].max(), s.y[on].max()]])
     tracked = segment_normal_flow(s.x, s.y, s.t, s.nx, s.ny, config=cfg, sensor_size=s.sensor_size,
@@ -194,3 +199,18 @@ def test_uncertain_fast_object_keeps_its_pull_in_scale_mode():
     # The same flows without their uncertainty must not be segmented identically (it is used).
     r0 = segment_normal_flow(s.x, s.y, s.t, nx, ny, sensor_size=s.sensor_size)
     assert not np.array_equal(r0.node_labels, r.node_labels)
+
+
+def test_residual_scale_follows_the_flow_noise():
+    """Exact flow keeps sigma near its floor; noisy flow of the same scene widens it."""
+    s = synthetic_scene(n_flows=2500, n_objects=1, seed=4)
+    exact = segment_normal_flow(s.x, s.y, s.t, s.nx, s.ny, sensor_size=s.sensor_size)
+    rng = np.random.default_rng(0)
+    norm = np.hypot(s.nx, s.ny)
+    noisy_mag = norm + rng.normal(0.0, 20.0, len(norm))
+    noisy = segment_normal_flow(s.x, s.y, s.t, s.nx / norm * noisy_mag, s.ny / norm * noisy_mag,
+                                sensor_size=s.sensor_size)
+    rel = SegmentationConfig().residual_scale_rel * float(np.median(norm[exact.node_index]))
+    assert exact.sigma_px_s == pytest.approx(max(2.0, rel), rel=0.05)
+    # 20 px/s of noise: ring noise ~14-16 px/s (biased low, see ring_noise), x 1.5.
+    assert 15.0 < noisy.sigma_px_s < 32.0
