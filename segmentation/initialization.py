@@ -70,7 +70,10 @@ def local_translations(
                              int(irls_iterations), float(min_conditioning), nx, ny)
 
 
-def ring_noise(nx: np.ndarray, ny: np.ndarray, edges: np.ndarray, scale_px_s: float) -> float:
+def ring_noise(
+    nx: np.ndarray, ny: np.ndarray, edges: np.ndarray, scale_px_s: float,
+    translations: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+) -> float:
     """Robust scale (px/s) of the flows about their 1-ring translations.
 
     1.4826 x the median over well-conditioned nodes of |n_hat . t_ring - |n||, with t_ring the
@@ -79,13 +82,16 @@ def ring_noise(nx: np.ndarray, ny: np.ndarray, edges: np.ndarray, scale_px_s: fl
     noise of the flow, not the spread of the scene's motions. As each node is part of its own
     ring the estimate runs ~20-30 % below the noise's standard deviation along the normal (the
     gain ``residual_scale_noise`` absorbs that). Falls back to every node when no
-    ring is well conditioned; 0.0 without nodes.
+    ring is well conditioned; 0.0 without nodes. ``translations``: the output of
+    :func:`local_translations` for these flows and scale, if the caller has it already.
     """
     nx = np.asarray(nx, dtype=np.float64)
     ny = np.asarray(ny, dtype=np.float64)
     if len(nx) == 0:
         return 0.0
-    tx, ty, ok = local_translations(nx, ny, edges, scale_px_s)
+    if translations is None:
+        translations = local_translations(nx, ny, edges, scale_px_s)
+    tx, ty, ok = translations
     norm = np.hypot(nx, ny)
     r = (nx * tx + ny * ty) / norm - norm
     use = ok if ok.any() else np.ones(len(nx), dtype=bool)

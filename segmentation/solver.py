@@ -222,11 +222,19 @@ def segment_normal_flow(
     # rings only) or its normal flow ('normal').
     vote_x, vote_y, voting = graph.nx, graph.ny, np.ones(m, dtype=bool)
     suspect = np.zeros(m, dtype=bool)  # flows that contradict a 1-ring moving as one
+    # The residual scale also follows the measured noise of the flow (about its 1-ring
+    # translations): exact flow can be judged tightly, a learned estimate cannot.
+    rings = None
     if cfg.residual_scale_noise > 0 and m:
-        sigma = max(sigma, cfg.residual_scale_noise * ring_noise(graph.nx, graph.ny, graph.edges, sigma))
+        rings = local_translations(graph.nx, graph.ny, graph.edges, sigma)
+        noise = ring_noise(graph.nx, graph.ny, graph.edges, sigma, translations=rings)
+        if cfg.residual_scale_noise * noise > sigma:
+            sigma, rings = cfg.residual_scale_noise * noise, None  # the rings' scale changed
     conf, node_scale = _uncertainty_terms(cfg, graph, a.get("uncertainty"), sigma)
     if cfg.sampling_flow == "local" and m:
-        vote_x, vote_y, ring_ok = local_translations(graph.nx, graph.ny, graph.edges, sigma)
+        if rings is None:
+            rings = local_translations(graph.nx, graph.ny, graph.edges, sigma)
+        vote_x, vote_y, ring_ok = rings
         # Every node votes when no 1-ring is well conditioned (e.g. one straight edge).
         voting = ring_ok if ring_ok.any() else voting
         if cfg.ring_consistency:
