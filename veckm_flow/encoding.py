@@ -55,6 +55,8 @@ if TYPE_CHECKING:  # pragma: no cover
 # Split of a microsecond offset into high and low parts for the exact two-table time phase.
 _LO_BITS = 10
 _LO_SIZE = 1 << _LO_BITS
+# Width (px) of the column blocks of the grid pass that threads share.
+_BLOCK_COLUMNS = 96
 
 
 @dataclass(frozen=True)
@@ -267,8 +269,6 @@ def encode_targets(
     Returns:
         float32 ``(T, 2 d + 1)``: ``[Re G, Im G]`` rescaled to norm ``sqrt(d)``, ``log(1 + n)``.
     """
-    import numba
-
     from evseg.veckm_flow import _kernels
 
     targets = _validate_targets(targets, len(events))
@@ -287,7 +287,10 @@ def encode_targets(
     dt = t - t.min()  # int64 us since the slice's first event, exact
     hi, lo = _planar_time_tables(cfg, int(dt.max()), matrix)
     cum, ccum = _workspace(height, width, cfg.d)
-    nblk = numba.get_num_threads()
+    # Column blocks of a fixed width, not one per thread: each block restarts its sliding
+    # float32 sums, so a thread-dependent split would make the features (and every label
+    # downstream) depend on the thread count. ~7 % more pixel evaluations than one block.
+    nblk = max(1, -(-width // _BLOCK_COLUMNS))
     pol = (events["p"] > 0).astype(np.int8) if cfg.polarity else np.zeros(len(events), np.int8)
     start, sdt, spol, row_used = _kernels.pixel_lists(x, y, dt, pol, width, height)
     pxy = _planar_phase(phase_xy)

@@ -65,6 +65,27 @@ def test_does_not_mutate_input_and_is_deterministic(make_slice):
     np.testing.assert_array_equal(a, b)
 
 
+def test_features_do_not_depend_on_the_thread_count(make_slice):
+    """The grid pass splits the sensor into column blocks of a fixed width: with blocks per
+    thread, 1 and 2 threads summed in another float32 order and labels could change."""
+    import numba
+
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("numba has a single thread here")
+    cfg = EncodingConfig(d=8, window_px=3)
+    ev = make_slice(4000, (346, 60))
+    targets = np.arange(0, 4000, 2)
+    before = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        one = encode_targets(ev, targets, (346, 60), cfg)
+        numba.set_num_threads(2)
+        two = encode_targets(ev, targets, (346, 60), cfg)
+    finally:
+        numba.set_num_threads(before)
+    np.testing.assert_array_equal(one, two)
+
+
 def test_matrix_is_seeded():
     a = encoding_matrix(EncodingConfig(d=8, seed=0, alpha=2.0))
     b = encoding_matrix(EncodingConfig(d=8, seed=0, alpha=2.0))
