@@ -179,8 +179,9 @@ class SegmentationConfig:
         _check_choice("potts_weighting", self.potts_weighting, POTTS_WEIGHTINGS)
         _check_choice("sampling_flow", self.sampling_flow, SAMPLING_FLOWS)
         _check_choice("uncertainty_use", self.uncertainty_use, UNCERTAINTY_USES)
-        for name in ("n_resampled", "cell_px", "min_flow_px_s", "residual_scale_px_s", "residual_scale_rel",
-                     "residual_scale_noise", "lambda_p", "lambda_m", "lm_damping", "mask_dilate_px", "merge_tol", "split_gap_px",
+        for name in ("n_resampled", "cell_px", "min_flow_px_s", "residual_scale_px_s",
+                     "residual_scale_rel", "residual_scale_noise", "lambda_p", "lambda_m",
+                     "lm_damping", "mask_dilate_px", "merge_tol", "split_gap_px",
                      "uncertainty_gain", "affine_prior_px"):
             if getattr(self, name) < 0:
                 raise ConfigError(f"SegmentationConfig.{name} must be >= 0, got {getattr(self, name)}")
