@@ -90,3 +90,20 @@ def test_graph_edges_are_unique_ordered_and_connected(n, seed, grid):
         ncomp, _ = connected_components(coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(m, m)))
         assert ncomp == 1
     np.testing.assert_allclose(g.edge_length, np.hypot(*(pos[e[:, 0]] - pos[e[:, 1]]).T))
+
+
+@settings(max_examples=40, deadline=None)
+@given(n=st.integers(3, 300), seed=st.integers(0, 1000))
+def test_delaunay_edges_are_the_sides_of_qhulls_triangles(n, seed):
+    """The compiled edge extraction (each edge from one triangle) gives exactly the set of
+    triangle sides, sorted, as deduplicating all sides would."""
+    from scipy.spatial import Delaunay
+
+    rng = np.random.default_rng(seed)
+    x, y = rng.uniform(0, 100, n), rng.uniform(0, 100, n)
+    e = delaunay_edges(x, y)
+    h = (np.arange(n) * 0.6180339887498949) % 1.0  # the same tie-breaking offset
+    tri = Delaunay(np.column_stack([x, y]) + np.column_stack([h - 0.5, (h * 7.3) % 1.0 - 0.5]) * 1e-3)
+    s = tri.simplices
+    sides = np.sort(np.concatenate([s[:, [0, 1]], s[:, [1, 2]], s[:, [0, 2]]]), axis=1)
+    np.testing.assert_array_equal(e, np.unique(sides, axis=0))
