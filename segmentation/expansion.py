@@ -61,7 +61,8 @@ def expansion_move(
 
 def _as_arrays(labels, data, edges, edge_w):
     """The dtypes and layouts the compiled move terms expect."""
-    return (np.ascontiguousarray(labels, dtype=np.int64), np.ascontiguousarray(data, dtype=np.float64),
+    return (np.ascontiguousarray(labels, dtype=np.int64),
+            np.ascontiguousarray(data, dtype=np.float64),
             np.ascontiguousarray(np.asarray(edges, dtype=np.int64).reshape(-1, 2)),
             np.ascontiguousarray(edge_w, dtype=np.float64))
 
@@ -123,7 +124,9 @@ class ExpansionResult:
     n_accepted: int
 
 
-def move_cannot_improve(labels: np.ndarray, alpha: int, bound: np.ndarray, label_costs: np.ndarray) -> bool:
+def move_cannot_improve(
+    labels: np.ndarray, alpha: int, bound: np.ndarray, label_costs: np.ndarray
+) -> bool:
     """Exact sufficient test that the expansion on ``alpha`` cannot lower the energy.
 
     ``bound[k]`` = D[k, alpha] - D[k, L_k] - (weight of the edges cut now at k), as
@@ -148,8 +151,11 @@ def move_cannot_improve(labels: np.ndarray, alpha: int, bound: np.ndarray, label
     return least >= 0.0
 
 
-def move_bound(labels: np.ndarray, alpha: int, data: np.ndarray, edges: np.ndarray, edge_w: np.ndarray) -> np.ndarray:
-    """(M,) D[k, alpha] - D[k, L_k] - (weight of the edges cut now at k), for :func:`move_cannot_improve`."""
+def move_bound(
+    labels: np.ndarray, alpha: int, data: np.ndarray, edges: np.ndarray, edge_w: np.ndarray
+) -> np.ndarray:
+    """(M,) D[k, alpha] - D[k, L_k] - (weight of the edges cut now at k), the ``bound`` of
+    :func:`move_cannot_improve`."""
     labels, data, edges, edge_w = _as_arrays(labels, data, edges, edge_w)
     return expansion_terms(labels, int(alpha), data, edges, edge_w)[4]
 

@@ -52,7 +52,8 @@ from evseg.segmentation.energy import data_costs, energy, potts_weights
 from evseg.segmentation.expansion import alpha_expansion
 from evseg.segmentation.fitting import fit_lm
 from evseg.segmentation.initialization import (
-    consensus_models, fast_sampling, local_translations, motion_prediction, ring_agreement, ring_noise,
+    consensus_models, fast_sampling, local_translations, motion_prediction, ring_agreement,
+    ring_noise,
 )
 from evseg.segmentation.motion_model import flow_field, model_change_px_s
 from evseg.segmentation.outputs import (
@@ -241,7 +242,6 @@ def segment_normal_flow(
             # A flow that contradicts a 1-ring which otherwise moves as one is likely an outlier:
             # it weighs less in the data term and the fits. Rings that do not agree (object
             # boundaries, small fast-spinning objects) leave their node's weight alone.
-            norm = np.hypot(graph.nx, graph.ny)
             r_self = (graph.nx * vote_x + graph.ny * vote_y) / norm - norm
             agree = ring_agreement(graph.nx, graph.ny, graph.edges, vote_x, vote_y, sigma)
             own = sigma if node_scale is None else sigma * node_scale
