@@ -220,3 +220,34 @@ def expansion_terms(labels, alpha, data, edges, edge_w):  # pragma: no cover
             pair_w[n_pairs] = pair
             n_pairs += 1
     return diff, pair_i[:n_pairs], pair_j[:n_pairs], pair_w[:n_pairs], bound
+
+
+@njit(cache=True)
+def confirmed_flows(starts, nx, ny, cert, max_run, rel_tol, abs_tol):  # pragma: no cover
+    """Position of each run's node for the 'confirmed' rule of :func:`.preprocessing.select_nodes`.
+
+    Runs ``[starts[c], starts[c+1])`` are sorted by increasing preference, ``starts`` has one
+    entry per run plus the end. Candidates: the run's flows of its best certainty ``cert``
+    (that of its last flow), at most the last ``max_run``. Returns, per run, the last candidate
+    that another candidate confirms (|n_i - n_j| <= rel_tol |n_i| + abs_tol, px/s), or the run's
+    last flow when none is confirmed."""
+    n_runs = starts.shape[0] - 1
+    out = np.empty(n_runs, dtype=np.int64)
+    for c in range(n_runs):
+        b = starts[c + 1]
+        a = b - 1
+        while a > starts[c] and b - a < max_run and cert[a - 1] == cert[b - 1]:
+            a -= 1
+        best = b - 1
+        for i in range(b - 1, a - 1, -1):
+            tol = rel_tol * np.sqrt(nx[i] * nx[i] + ny[i] * ny[i]) + abs_tol
+            confirmed = False
+            for j in range(a, b):
+                if j != i and (nx[i] - nx[j]) ** 2 + (ny[i] - ny[j]) ** 2 <= tol * tol:
+                    confirmed = True
+                    break
+            if confirmed:
+                best = i
+                break
+        out[c] = best
+    return out

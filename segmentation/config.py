@@ -32,6 +32,7 @@ MASK_METHODS = ("hull", "dilate")
 POTTS_WEIGHTINGS = ("uniform", "distance")
 SAMPLING_FLOWS = ("local", "normal")
 UNCERTAINTY_USES = ("confidence", "scale", "ignore")
+CELL_RULES = ("confirmed", "preferred")
 
 
 @dataclass(frozen=True)
@@ -46,6 +47,10 @@ class SegmentationConfig:
     cell_px: float = 3.0
     """Side of the square cell (px) that keeps one node; 3 px gives ~1.5 k nodes for a 10 ms
     window of a textured 346x260 scene. 0 keeps every flow (duplicate positions still merged)."""
+    cell_rule: str = "confirmed"
+    """Which flow of a cell becomes its node: 'confirmed' = the most certain, then latest one
+    that another flow of the cell agrees with (a lone stray flow is passed over),
+    'preferred' = the most certain, then latest one (see :mod:`.preprocessing`)."""
     node_window_us: int | None = None
     """Only flows with t >= t_max - node_window_us become nodes (the latest slice of the
     window); None uses every flow given."""
@@ -98,6 +103,11 @@ class SegmentationConfig:
     """Length (px) up to which a Delaunay edge has full Potts weight ('distance' weighting)."""
     lambda_m: float = 80.0
     """Label cost (Delong et al. 2012) paid once per motion model in use (sigma^2 units)."""
+
+    tracked_label_cost: float = 1.0
+    """Share of lambda_m that a candidate from motion prediction (an object tracked in the
+    previous window) pays: below 1, an object once found is kept while its evidence dips
+    (hysteresis); 1 = every label pays alike (the paper)."""
 
     # --- optimisation ------------------------------------------------------------------
     max_rounds: int = 2
@@ -165,6 +175,11 @@ class SegmentationConfig:
     split_gap_px: float = 12.0
     """Parts of one motion label closer than this (px, box to box) are one object (an object
     seen through a net falls apart into nearby pieces); farther parts are separate objects."""
+    max_object_parts: int = 2
+    """A motion label that falls apart into more separate objects than this (each of
+    ``min_object_nodes``, farther apart than ``split_gap_px``) is a scattered background layer
+    (a stretch of a net whose parallax differs slightly from the rest) and joins the background;
+    two objects moving alike stay two objects. 0 = no limit."""
     mask_method: str = "hull"
     """'hull': convex hull of the object's nodes, dilated by mask_dilate_px; 'dilate':
     the object's nodes rasterised and dilated by cell_px/2 + mask_dilate_px, holes closed."""
@@ -179,10 +194,12 @@ class SegmentationConfig:
         _check_choice("potts_weighting", self.potts_weighting, POTTS_WEIGHTINGS)
         _check_choice("sampling_flow", self.sampling_flow, SAMPLING_FLOWS)
         _check_choice("uncertainty_use", self.uncertainty_use, UNCERTAINTY_USES)
+        _check_choice("cell_rule", self.cell_rule, CELL_RULES)
         for name in ("n_resampled", "cell_px", "min_flow_px_s", "residual_scale_px_s",
                      "residual_scale_rel", "residual_scale_noise", "lambda_p", "lambda_m",
                      "lm_damping", "mask_dilate_px", "merge_tol", "split_gap_px",
-                     "uncertainty_gain", "affine_prior_px"):
+                     "uncertainty_gain", "affine_prior_px", "max_object_parts",
+                     "tracked_label_cost"):
             if getattr(self, name) < 0:
                 raise ConfigError(f"SegmentationConfig.{name} must be >= 0, got {getattr(self, name)}")
         for name in ("truncation", "uncertainty_scale", "sampling_bin", "max_object_extent", "edge_scale_px", "robust_scale",

@@ -64,6 +64,7 @@ def split_objects(
     x: np.ndarray | None = None,
     y: np.ndarray | None = None,
     gap_px: float = 0.0,
+    max_parts: int = 0,
 ) -> tuple[np.ndarray, np.ndarray, dict[int, np.ndarray]]:
     """Make every sizeable separate part of a moving label its own object.
 
@@ -74,12 +75,15 @@ def split_objects(
     ``min_nodes`` nodes (and at least a quarter of the label's largest part) becomes an object
     with a copy of the label's model; smaller fragments keep the label of the label's largest
     part and stay out of its region. A label with no part of ``min_nodes`` nodes is dropped
-    and its nodes become -1.
+    and its nodes become -1. A label with more than ``max_parts`` sizeable parts (0 = no limit)
+    is a scattered background layer, not objects (a patch of a net whose parallax differs a
+    little from the rest of the net): its nodes join the background (label 0).
 
     Args:
         labels: (M,) 0 = background, 1..K objects, -1 unassigned. edges: (E, 2).
         models: (K+1, 4). min_nodes: minimum size of a separate object.
         x, y: (M,) node positions px (needed when gap_px > 0). gap_px: joining distance, px.
+        max_parts: most separate objects one label may make (0 = no limit).
     Returns:
         (labels, models, regions): new labels 1..K' by decreasing part size, (K'+1, 4) models,
         and {k: node indices of object k's region}.
@@ -99,6 +103,7 @@ def split_objects(
         comp = _join_near_components(comp, labels, np.asarray(x, dtype=np.float64),
                                      np.asarray(y, dtype=np.float64), gap_px)
     parts = []  # (size, label, component id)
+    layer = []  # labels scattered into more than max_parts parts
     fragments = {}  # label -> (component ids that stay with its largest part)
     for k in range(1, len(models)):  # loop over labels (a handful), arrays inside
         nodes = np.flatnonzero(labels == k)
@@ -108,11 +113,14 @@ def split_objects(
         big = (sizes >= min_nodes) & (sizes >= 0.25 * sizes.max())
         if not big.any():
             continue  # scattered nodes only (e.g. outliers one model happens to fit): unassigned
+        if 0 < max_parts < int(big.sum()):
+            layer.append(k)
+            continue
         for c, n in zip(ids[big], sizes[big]):
             parts.append((int(n), k, int(c)))
         fragments[k] = (int(ids[np.argmax(sizes)]), ids[~big])
     parts.sort(key=lambda p: (-p[0], p[1], p[2]))
-    new_labels = np.where(labels == 0, 0, -1)
+    new_labels = np.where((labels == 0) | np.isin(labels, layer), 0, -1)
     new_models = [np.asarray(models[0])]
     regions = {}
     part_label = {}

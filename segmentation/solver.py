@@ -205,7 +205,7 @@ def segment_normal_flow(
     tic, cpu = time.perf_counter(), time.process_time()
     graph = build_node_graph(a["x"], a["y"], a["t"], a["nx"], a["ny"], a.get("uncertainty"),
                              cfg.cell_px, cfg.min_flow_px_s, cfg.max_uncertainty,
-                             cfg.node_window_us, cfg.uncertainty_scale)
+                             cfg.node_window_us, cfg.uncertainty_scale, cfg.cell_rule)
     origin = _origin(cfg, sensor_size)
     xr, yr = graph.x - origin[0], graph.y - origin[1]
     m = len(graph)
@@ -295,14 +295,18 @@ def segment_normal_flow(
             return data_costs(mod, xr, yr, graph.nx, graph.ny, sigma, cfg.truncation, conf, node_scale)
 
         ar = np.arange(m)
+        # Label costs: a candidate predicted from a tracked object pays tracked_label_cost x
+        # lambda_m (it existed a window ago, so a new motion is less of a surprise).
+        h = np.full(len(models), cfg.lambda_m)
+        h[len(predicted) - n_object_candidates : len(predicted)] *= cfg.tracked_label_cost
         # Round 0 (see module docstring): fit each sampled candidate to the nodes that voted
         # for it, then label greedily.
         data = costs(models)
         fit_on = _voters(vote_x, vote_y, voting, sampled[:, 2:], bin_px_s, len(predicted))
         models, data = _refit(models, data, fit_on, xr, yr, graph, lm_kw, costs, ar, always=True)
         labels = np.argmin(data, axis=1)
-        models, data, labels = _merge_duplicates(models, data, labels, cfg.merge_tol * sigma, radius,
-                                                 graph.edges, edge_w, cfg.lambda_m)
+        models, data, labels, h = _merge_duplicates(models, data, labels, h, cfg.merge_tol * sigma,
+                                                    radius, graph.edges, edge_w)
         if cfg.n_resampled > 0:
             # Round 0b: regions no fitted model explains (see module docstring).
             # Likely outliers are unexplained by every model but form no region of their own.
@@ -316,32 +320,30 @@ def segment_normal_flow(
                 extra = fit_lm(xr[keep], yr[keep], graph.nx[keep], graph.ny[keep], region[keep],
                                start, **{**lm_kw, "weights": fit_w[keep]})
                 models = np.concatenate([models, extra])
+                h = np.concatenate([h, np.full(n_extra, cfg.lambda_m)])
                 data = costs(models)
                 labels = np.argmin(data, axis=1)
-                models, data, labels = _merge_duplicates(
-                    models, data, labels, cfg.merge_tol * sigma, radius, graph.edges, edge_w,
-                    cfg.lambda_m)
+                models, data, labels, h = _merge_duplicates(
+                    models, data, labels, h, cfg.merge_tol * sigma, radius, graph.edges, edge_w)
                 n_candidates += n_extra
         for n_rounds in range(1, cfg.max_rounds + 1):
-            h = np.full(len(models), cfg.lambda_m)
             res = alpha_expansion(labels, data, graph.edges, edge_w, h, cfg.expansion_cycles)
             used = np.flatnonzero(np.bincount(res.labels, minlength=len(models)))
             remap = np.full(len(models), -1, dtype=np.int64)
             remap[used] = np.arange(len(used))
             new_labels = remap[res.labels]
             changed = len(used) != len(models) or not np.array_equal(new_labels, labels)
-            models, data, labels = models[used], data[:, used], new_labels
+            models, data, labels, h = models[used], data[:, used], new_labels, h[used]
             old = models
             models, data = _refit(models, data, labels, xr, yr, graph, lm_kw, costs, ar)
-            models, data, labels = _merge_duplicates(models, data, labels, cfg.merge_tol * sigma,
-                                                     radius, graph.edges, edge_w, cfg.lambda_m)
+            models, data, labels, h = _merge_duplicates(models, data, labels, h, cfg.merge_tol * sigma,
+                                                        radius, graph.edges, edge_w)
             if len(models) != len(old):
                 changed = True
                 old = models  # merged: the tolerance test is meaningless this round
             moved = float(model_change_px_s(old, models, radius).max())
             if not changed and moved <= cfg.model_tol_px_s:
                 break
-        h = np.full(len(models), cfg.lambda_m)
         e_final = energy(labels, data, graph.edges, edge_w, h)
         # Background = largest cluster; objects by decreasing size.
         sizes = np.bincount(labels, minlength=len(models))
@@ -370,7 +372,8 @@ def segment_normal_flow(
             labels = np.where(labels >= 0, remap[np.maximum(labels, 0)], -1)
             models = models[keep]
     labels, models, regions = split_objects(labels, graph.edges, models, cfg.min_object_nodes,
-                                            graph.x, graph.y, cfg.split_gap_px)
+                                            graph.x, graph.y, cfg.split_gap_px,
+                                            cfg.max_object_parts)
     boxes, masks = {}, {}
     for k, nodes in regions.items():  # loop over objects (a handful), arrays inside
         # Motion compensation: move each node along its object's flow to the window's mid-time,
@@ -465,7 +468,7 @@ def _refit(models, data, labels, xr, yr, graph, lm_kw, costs, ar, always=False):
     return models, data
 
 
-def _merge_duplicates(models, data, labels, tol_px_s, radius_px, edges, edge_w, lambda_m):
+def _merge_duplicates(models, data, labels, h, tol_px_s, radius_px, edges, edge_w):
     """Merge labels whose flow fields differ by less than ``tol_px_s`` over the sensor.
 
     Near-identical models (several sampled candidates converging to the background) are
@@ -475,7 +478,7 @@ def _merge_duplicates(models, data, labels, tol_px_s, radius_px, edges, edge_w, 
     """
     n = len(models)
     if n < 2:
-        return models, data, labels
+        return models, data, labels, h
     from evseg.segmentation.motion_model import linear_parameters
 
     q = linear_parameters(models)
@@ -490,13 +493,14 @@ def _merge_duplicates(models, data, labels, tol_px_s, radius_px, edges, edge_w, 
                              & (sizes <= sizes[a]))
         target[dup] = a
     if np.all(target == np.arange(n)):
-        return models, data, labels
+        return models, data, labels, h
     keep = np.flatnonzero(target == np.arange(n))
     remap = np.full(n, -1, dtype=np.int64)
     remap[keep] = np.arange(len(keep))
     new_labels = remap[target[labels]]
-    h_old = np.full(n, lambda_m)
-    h_new = np.full(len(keep), lambda_m)
-    if energy(new_labels, data[:, keep], edges, edge_w, h_new) < energy(labels, data, edges, edge_w, h_old):
-        return models[keep], data[:, keep], new_labels
-    return models, data, labels
+    # A merged label keeps the lowest label cost of its members (a tracked object stays tracked).
+    h_new = np.full(len(keep), np.inf)
+    np.minimum.at(h_new, remap[target], h)
+    if energy(new_labels, data[:, keep], edges, edge_w, h_new) < energy(labels, data, edges, edge_w, h):
+        return models[keep], data[:, keep], new_labels, h_new
+    return models, data, labels, h

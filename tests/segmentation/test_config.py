@@ -36,5 +36,9 @@ def test_wrong_types_and_values(tmp_path):
     assert cfg.origin_px == (1.0, 2.0) and cfg.max_rounds == 5 and cfg.lambda_m == 7.0
     with pytest.raises(ConfigError):
         SegmentationConfig(max_rounds=0)
+    with pytest.raises(ConfigError, match="cell_rule"):
+        SegmentationConfig(cell_rule="latest")
+    with pytest.raises(ConfigError, match="tracked_label_cost"):
+        SegmentationConfig(tracked_label_cost=-0.5)
     with pytest.raises(ConfigError, match="unknown segmentation preset"):
         load_segmentation_config("nope")

@@ -1,6 +1,7 @@
 """Node selection (one flow per cell) and the Delaunay graph, including degenerate inputs."""
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -107,3 +108,47 @@ def test_delaunay_edges_are_the_sides_of_qhulls_triangles(n, seed):
     s = tri.simplices
     sides = np.sort(np.concatenate([s[:, [0, 1]], s[:, [1, 2]], s[:, [0, 2]]]), axis=1)
     np.testing.assert_array_equal(e, np.unique(sides, axis=0))
+
+
+def test_confirmed_rule_passes_over_a_stray_latest_flow():
+    # One 4 px cell, flows in time order: three along (10, 0) px/s, the latest a stray one.
+    x = np.array([0.5, 1.0, 1.5, 2.0])
+    y = np.zeros(4)
+    t = np.array([1, 2, 3, 4])
+    nx = np.array([10.0, 10.0, 11.0, -80.0])
+    ny = np.array([0.0, 0.0, 0.0, 50.0])
+    assert select_nodes(x, y, t, nx, ny, None, cell_px=4.0, rule="preferred").tolist() == [3]
+    # The stray flow is 90+ px/s from every other (tolerance 0.25 x 94 + 1 = 24.6 px/s); flow 2
+    # (11 px/s) is 1 px/s from flows 0 and 1 (tolerance 3.75): the latest confirmed one.
+    assert select_nodes(x, y, t, nx, ny, None, cell_px=4.0, rule="confirmed").tolist() == [2]
+    # No flow confirmed: the preferred (latest) one.
+    lone = np.array([10.0, 40.0, 90.0, -80.0])
+    assert select_nodes(x, y, t, lone, ny, None, cell_px=4.0, rule="confirmed").tolist() == [3]
+    # With an uncertainty per flow the most certain flow wins, stray or not: the estimator's
+    # certainty decides before any vote.
+    unc = np.array([0.3, 0.2, 0.1, 0.05])
+    assert select_nodes(x, y, t, nx, ny, unc, cell_px=4.0, rule="confirmed").tolist() == [3]
+    with pytest.raises(ValueError, match="rule"):
+        select_nodes(x, y, t, nx, ny, None, cell_px=4.0, rule="median")
+
+
+def test_confirmed_rule_keeps_few_outliers_as_nodes():
+    """30 % of the flows replaced by random vectors (uniform in +-300 px/s): with 'preferred'
+    about 30 % of the nodes are outliers. With 'confirmed' an outlier becomes a node only when
+    another outlier of its cell happens to lie within its tolerance (~5 % of the square for
+    |n| ~ 300 px/s) and it is later than every confirmed inlier, or when the cell has fewer
+    than two inliers: a few % of the cells (8 flows each); the bound 8 % leaves room."""
+    rng = np.random.default_rng(0)
+    n = 8 * 40 * 40  # 8 flows in each 4 px cell of a 160 px square
+    x = rng.uniform(0, 160, n)
+    y = rng.uniform(0, 160, n)
+    t = rng.integers(0, 10_000, n)
+    nx = np.full(n, 100.0)
+    ny = np.full(n, 20.0)
+    bad = rng.random(n) < 0.3
+    nx[bad] = rng.uniform(-300, 300, bad.sum())
+    ny[bad] = rng.uniform(-300, 300, bad.sum())
+    share = {rule: bad[select_nodes(x, y, t, nx, ny, None, 4.0, rule=rule)].mean()
+             for rule in ("preferred", "confirmed")}
+    assert 0.25 < share["preferred"] < 0.35
+    assert share["confirmed"] < 0.08

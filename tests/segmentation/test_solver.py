@@ -168,6 +168,46 @@ def test_split_objects_joins_nearby_pieces_of_one_label():
     assert len(np.unique(new[new > 0])) == 3
 
 
+def test_split_objects_turns_a_scattered_label_into_background():
+    """A label in three separate pieces is a patch of a background layer when at most two
+    objects may share a label (max_parts=2); two pieces stay two objects."""
+    from evseg.segmentation.outputs import split_objects
+
+    # chain: label 1 on {0,1,2}, {4,5,6}, {8,9,10}; label 0 on 3 and 7
+    labels = np.array([1, 1, 1, 0, 1, 1, 1, 0, 1, 1, 1])
+    edges = np.array([[i, i + 1] for i in range(10)])
+    models = np.array([[1.0, 0, 0, 0], [1.0, 0, 5, 5]])
+    new, mod, regions = split_objects(labels, edges, models, 3, max_parts=2)
+    np.testing.assert_array_equal(new, np.zeros(11))
+    assert len(mod) == 1 and regions == {}
+    new, _, regions = split_objects(labels, edges, models, 3, max_parts=3)
+    assert sorted(regions) == [1, 2, 3]
+    two = np.where(np.arange(11) >= 8, 0, labels)
+    new, _, regions = split_objects(two, edges, models, 3, max_parts=2)
+    np.testing.assert_array_equal(new, [1, 1, 1, 0, 2, 2, 2, 0, 0, 0, 0])
+
+
+def test_tracked_label_cost_keeps_a_tracked_object_that_a_full_label_cost_removes():
+    """With a label cost far above what the object saves, only a tracked object whose label
+    pays the reduced share survives (hysteresis); untracked candidates still pay in full."""
+    s = synthetic_scene(n_flows=2500, n_objects=1, seed=4)
+    on = s.label == 1
+    box = np.array([[s.x[on].min(), s.y[on].min(), s.x[on].max(), s.y[on].max()]])
+    saving = 9.0 * on.sum()  # at most tau^2 per object node
+    kw = dict(sensor_size=s.sensor_size, tracked_objects=(box, s.models[1:2]))
+    full = SegmentationConfig(lambda_m=2.0 * saving)
+    r = segment_normal_flow(s.x, s.y, s.t, s.nx, s.ny, config=full, **kw)
+    assert r.n_objects == 0
+    kept = SegmentationConfig(lambda_m=2.0 * saving, tracked_label_cost=0.01)
+    r = segment_normal_flow(s.x, s.y, s.t, s.nx, s.ny, config=kept, **kw)
+    assert r.n_objects == 1
+    lab, share = majority(s.label[r.node_index], r.node_labels, 1)
+    assert lab == 1 and share > 0.9
+    # Without a track nothing is discounted: the object still cannot pay its label.
+    alone = segment_normal_flow(s.x, s.y, s.t, s.nx, s.ny, config=kept, sensor_size=s.sensor_size)
+    assert alone.n_objects == 0
+
+
 def test_data_cost_with_node_scale_is_exact():
     """cost = c * min((r / (sigma * s_k))^2, tau^2): hand-computed for one node, one model."""
     from evseg.segmentation.energy import data_costs
