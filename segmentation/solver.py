@@ -36,7 +36,9 @@ Order of the steps (our choice where the paper is silent):
    which the EED ground truth counts as background - and joins label 0 (the model of label 0
    stays the largest cluster's). Finally every sizeable connected part of an object label is an
    object of its own (two objects moving alike share a model but are two objects;
-   :func:`.outputs.split_objects`), numbered by decreasing size.
+   :func:`.outputs.split_objects`), numbered by decreasing size; a label that falls apart into
+   more than ``max_object_parts`` far-apart parts is a scattered background layer and joins
+   label 0.
 """
 
 from __future__ import annotations
