@@ -24,6 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from evseg.errors import ConfigError, yaml_problem
+from evseg.segmentation.preprocessing import CELL_RULES
 
 _PRESET_DIR = Path(__file__).resolve().parents[1] / "configs" / "segmentation"
 
@@ -32,7 +33,6 @@ MASK_METHODS = ("hull", "dilate")
 POTTS_WEIGHTINGS = ("uniform", "distance")
 SAMPLING_FLOWS = ("local", "normal")
 UNCERTAINTY_USES = ("confidence", "scale", "ignore")
-CELL_RULES = ("confirmed", "preferred")
 
 
 @dataclass(frozen=True)
