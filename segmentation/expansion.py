@@ -18,6 +18,16 @@ or switch to alpha (s = 1, sink side). Its energy is a submodular function of th
   global minimiser of G, so it is also the best s != 0 whenever s* != 0; if s* = 0 nothing
   moves). The comparison is the exact-energy acceptance test that follows every move, so the
   move stays optimal over its move space.
+* large label-cost stars: BK max-flow slows down badly on a star joined to thousands of nodes
+  (a 51 k-node star took 3.9 s against 25 ms without it, on a 1280x720 window). The up to
+  :data:`MAX_ENUMERATED_STARS` largest stars of at least :data:`ENUMERATED_STAR_MIN_NODES`
+  nodes are therefore replaced by enumeration: for each subset R of those labels, cut with
+  every node of R forced to alpha (a large sink capacity; successive subsets differ by one
+  label, Gray code, and reuse the previous search trees, Kohli & Torr 2005) and keep the
+  subset whose cut has the lowest move energy. Exact: if R* is the set of enumerated labels
+  the optimal move removes, the cut forced on R* costs at most the optimum (it minimises the
+  same energy less the label costs of R*, which it pays no more of), and every evaluated cut is
+  scored with its true move energy.
 
 The graph of each move is built with array calls (``add_nodes``, ``add_grid_tedges``,
 ``add_edges``), never a Python loop over nodes or edges. After each move the exact energy is
@@ -67,35 +77,84 @@ def _as_arrays(labels, data, edges, edge_w):
             np.ascontiguousarray(edge_w, dtype=np.float64))
 
 
+MAX_ENUMERATED_STARS = 3
+"""At most this many label-cost stars per move are enumerated instead of built (2^k cuts)."""
+
+ENUMERATED_STAR_MIN_NODES = 500
+"""A label-cost star is enumerated instead of built when its label holds this many nodes: on
+3 k-node windows such labels are rare and the change is neutral (-9 % total cut time on the
+1 M events/s benchmark stream); on 52 k-node windows it made the expansion moves 5x faster."""
+
+
 def _cut(labels: np.ndarray, alpha: int, terms: tuple, label_costs: np.ndarray) -> np.ndarray:
     """Build the move's graph from its terms (:func:`._kernels.expansion_terms`), cut it."""
     diff, pair_i, pair_j, pair_w, bound = terms
     m = len(labels)
-    g = maxflow.Graph[float](m + 8, len(pair_i) + m)
+    n_labels = len(label_costs)
+    count = np.bincount(labels, minlength=n_labels)
+    others = np.flatnonzero((count > 0) & (label_costs > 0) & (np.arange(n_labels) != alpha))
+    if len(others):
+        others = others[_label_cost_can_matter(labels, bound, label_costs, others)]
+    # The largest stars are enumerated (module docstring), the rest built.
+    enumerated = others[np.argsort(-count[others], kind="stable")][:MAX_ENUMERATED_STARS]
+    enumerated = np.sort(enumerated[count[enumerated] >= ENUMERATED_STAR_MIN_NODES])
+    stars = np.setdiff1d(others, enumerated)
+
+    g = maxflow.Graph[float](m + len(stars) + 8, len(pair_i) + m)
     nodes = g.add_nodes(m)
     if len(pair_i):
         g.add_edges(pair_i, pair_j, pair_w, np.zeros(len(pair_i)))
     # A node in the source segment (s=0) pays its sink capacity, in the sink segment its source one.
     g.add_grid_tedges(nodes, np.maximum(diff, 0.0), np.maximum(-diff, 0.0))
-
-    n_labels = len(label_costs)
-    used = np.bincount(labels, minlength=n_labels) > 0
-    others = np.flatnonzero(used & (label_costs > 0) & (np.arange(n_labels) != alpha))
-    if len(others):
-        others = others[_label_cost_can_matter(labels, bound, label_costs, others)]
-    if len(others):
-        aux = g.add_nodes(len(others))
-        h = label_costs[others]
+    if len(stars):
+        aux = g.add_nodes(len(stars))
         # y = 0 (source side) pays h_l: sink capacity h_l.
-        g.add_grid_tedges(aux, np.zeros(len(others)), h)
+        g.add_grid_tedges(aux, np.zeros(len(stars)), label_costs[stars])
         slot = np.full(n_labels, -1, dtype=np.int64)
-        slot[others] = np.arange(len(others))
+        slot[stars] = np.arange(len(stars))
         k = np.flatnonzero(slot[labels] >= 0)
         target = aux[slot[labels[k]]]
         g.add_edges(nodes[k], target, label_costs[labels[k]], np.zeros(len(k)))
     g.maxflow()
     switch = g.get_grid_segments(nodes)
+    if len(enumerated):
+        switch = _enumerate_stars(g, nodes, switch, labels, enumerated, others, terms, label_costs)
     return np.where(switch, alpha, labels)
+
+
+def _enumerate_stars(g, nodes, switch, labels, enumerated, others, terms, label_costs):
+    """Best cut over the subsets of ``enumerated`` labels forced to alpha (module docstring).
+
+    ``g`` has been cut once (no label forced; that cut is ``switch``); returns the switch mask
+    of the subset whose cut has the lowest move energy (first found on ties).
+    """
+    diff, _, _, pair_w, _ = terms
+    # Larger than any energy difference of the move: a forced node never stays.
+    force = 1.0 + float(np.abs(diff).sum() + pair_w.sum() + label_costs[others].sum())
+    members = [np.flatnonzero(labels == lab) for lab in enumerated]
+    forced = np.zeros(len(enumerated), dtype=bool)
+    best, best_e = switch, _move_energy(switch, labels, terms, label_costs, others)
+    for step in range(1, 2 ** len(enumerated)):
+        j = (step & -step).bit_length() - 1  # Gray code: one label changes per step
+        forced[j] = not forced[j]
+        k = members[j]
+        g.add_grid_tedges(nodes[k], np.zeros(len(k)), np.full(len(k), force if forced[j] else -force))
+        g.mark_grid_nodes(nodes[k])
+        g.maxflow(reuse_trees=True)
+        s = g.get_grid_segments(nodes)
+        e = _move_energy(s, labels, terms, label_costs, others)
+        if e < best_e - 1e-12 * max(1.0, abs(best_e)):
+            best, best_e = s, e
+    return best
+
+
+def _move_energy(switch, labels, terms, label_costs, others):
+    """Energy of a move (up to a constant) without alpha's label cost: the switched nodes'
+    unary terms, the pairwise terms and the label costs of ``others`` still in use."""
+    diff, pair_i, pair_j, pair_w, _ = terms
+    e = float(diff[switch].sum() + pair_w[~switch[pair_i] & switch[pair_j]].sum())
+    kept = np.bincount(labels[~switch], minlength=len(label_costs)) > 0
+    return e + float(label_costs[others][kept[others]].sum())
 
 
 def _label_cost_can_matter(

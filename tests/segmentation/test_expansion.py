@@ -145,3 +145,57 @@ def test_skip_test_counts_the_label_cost_of_an_unused_alpha(h_alpha, skipped):
     _, best_e = brute_force_move(labels, 2, data, edges, w, h)
     improves = best_e < energy(labels, data, edges, w, h) - 1e-9
     assert improves is not skipped
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 10_000), alpha=st.integers(0, 3), n_enum=st.integers(1, 3))
+def test_enumerated_label_cost_stars_keep_each_move_optimal(seed, alpha, n_enum):
+    # Large stars are replaced by enumerating forced subsets (expansion.py); lower the size
+    # threshold so that the tiny brute-force problems take that path, with 1-3 enumerated
+    # labels and the remaining stars built.
+    import evseg.segmentation.expansion as ex
+
+    labels, data, edges, w, h = random_problem(seed, m=9, n_labels=4)
+    h = h * 3.0  # label costs that matter: the stars are needed
+    before = (ex.ENUMERATED_STAR_MIN_NODES, ex.MAX_ENUMERATED_STARS)
+    ex.ENUMERATED_STAR_MIN_NODES, ex.MAX_ENUMERATED_STARS = 1, n_enum
+    try:
+        got = expansion_move(labels, alpha, data, edges, w, h)
+    finally:
+        ex.ENUMERATED_STAR_MIN_NODES, ex.MAX_ENUMERATED_STARS = before
+    assert np.all((got == labels) | (got == alpha))
+    _, best_e = brute_force_move(labels, alpha, data, edges, w, h)
+    e_cur = energy(labels, data, edges, w, h)
+    np.testing.assert_allclose(min(energy(got, data, edges, w, h), e_cur), best_e, rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_enumerated_and_built_stars_give_moves_of_equal_energy(seed, monkeypatch):
+    # A problem too large for brute force, with one label of >= ENUMERATED_STAR_MIN_NODES
+    # nodes whose star is needed: the enumerated move and the one with every star built
+    # (Delong's construction) reach the same energy.
+    import evseg.segmentation.expansion as ex
+
+    rng = np.random.default_rng(seed)
+    m = 1500
+    x, y = rng.uniform(0, 100, m), rng.uniform(0, 100, m)
+    edges = delaunay_edges(x, y)
+    w = np.full(len(edges), 0.5)
+    # Labels 0 and 1 explain the data almost equally; switching all of label 1 to 0 pays
+    # only through label 1's cost (~730 x 0.1 of data against 80 + ~40 of Potts border):
+    # without its star the move keeps label 1.
+    data = np.zeros((m, 3))
+    data[:, 1] = rng.uniform(0, 1, m)
+    data[:, 0] = data[:, 1] + rng.uniform(0.09, 0.11, m)
+    data[x >= 60, :2] = 5.0  # label 2's region stays label 2
+    data[x < 60, 2] = 5.0
+    labels = np.where(x < 60, 1, 2).astype(np.int64)
+    labels[x < 10] = 0
+    h = np.array([5.0, 80.0, 5.0])
+    assert np.sum(labels == 1) >= ex.ENUMERATED_STAR_MIN_NODES
+    enumerated = expansion_move(labels, 0, data, edges, w, h)
+    monkeypatch.setattr(ex, "MAX_ENUMERATED_STARS", 0)
+    built = expansion_move(labels, 0, data, edges, w, h)
+    e_enum, e_built = energy(enumerated, data, edges, w, h), energy(built, data, edges, w, h)
+    assert e_enum == pytest.approx(e_built, rel=1e-12, abs=1e-9)
+    assert not np.any(enumerated == 1)  # label 1's cost is saved by switching all of it
