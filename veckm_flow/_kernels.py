@@ -47,8 +47,9 @@ def pixel_lists(x, y, dt, pol, width, height):  # pragma: no cover
 
 
 @njit(cache=True, fastmath=True, inline="always")
-def _pixel_value(p, start, sdt, spol, hi, lo, lo_bits, phase_xy, yy, u, out, slot):  # pragma: no cover
-    """``out[slot] = phase_xy[yy, u] * sum over the pixel's events of hi * lo`` (planar)."""
+def _pixel_value(p, start, sdt, spol, hi, lo, lo_bits, rows, cols, yy, u, out, slot):  # pragma: no cover
+    """``out[slot] = phase(yy, u) * sum over the pixel's events of hi * lo`` (planar), with
+    ``phase(yy, u) = rows[yy, u or 0] * cols[u, 0]`` (``encoding.SpatialPhase``)."""
     d = out.shape[2]
     mask = (1 << lo_bits) - 1
     for m in range(d):
@@ -61,19 +62,25 @@ def _pixel_value(p, start, sdt, spol, hi, lo, lo_bits, phase_xy, yy, u, out, slo
         for m in range(d):
             out[slot, 0, m] += hi[h, 0, m] * lo[b, l, 0, m] - hi[h, 1, m] * lo[b, l, 1, m]
             out[slot, 1, m] += hi[h, 0, m] * lo[b, l, 1, m] + hi[h, 1, m] * lo[b, l, 0, m]
+    ur = u if rows.shape[1] > 1 else 0
     for m in range(d):
         fr = out[slot, 0, m]
         fi = out[slot, 1, m]
-        pr = phase_xy[yy, u, 0, m]
-        pi = phase_xy[yy, u, 1, m]
+        ar = rows[yy, ur, 0, m]
+        ai = rows[yy, ur, 1, m]
+        br = cols[u, 0, 0, m]
+        bi = cols[u, 0, 1, m]
+        pr = ar * br - ai * bi
+        pi = ar * bi + ai * br
         out[slot, 0, m] = fr * pr - fi * pi
         out[slot, 1, m] = fr * pi + fi * pr
 
 
 @njit(cache=True, parallel=True, fastmath=True)
-def box_pass(start, sdt, spol, hi, lo, lo_bits, row_used, phase_xy, k, cum, ccum, nblk):  # pragma: no cover
+def box_pass(start, sdt, spol, hi, lo, lo_bits, row_used, rows, cols, k, cum, ccum, nblk):  # pragma: no cover
     """One pass over the grid: ``cum[y, x]`` = sum over rows ``<= y`` of the box sums along x
-    (``|dx| <= k``) of the per-pixel field ``phase_xy * sum_events hi * lo``; ``ccum`` the same
+    (``|dx| <= k``) of the per-pixel field ``phase * sum_events hi * lo`` (phase from ``rows``,
+    ``cols``: see ``_pixel_value``); ``ccum`` the same
     for the event counts.
 
     The field is never stored: a pixel's value is computed from its events (``pixel_lists``)
@@ -112,7 +119,7 @@ def box_pass(start, sdt, spol, hi, lo, lo_bits, row_used, phase_xy, k, cum, ccum
                 if n > 0:
                     cb += n
                     s = u % ring_n
-                    _pixel_value(row0 + u, start, sdt, spol, hi, lo, lo_bits, phase_xy, yy, u, ring, s)
+                    _pixel_value(row0 + u, start, sdt, spol, hi, lo, lo_bits, rows, cols, yy, u, ring, s)
                     for m in range(d):
                         box[0, m] += ring[s, 0, m]
                         box[1, m] += ring[s, 1, m]
@@ -123,7 +130,7 @@ def box_pass(start, sdt, spol, hi, lo, lo_bits, row_used, phase_xy, k, cum, ccum
                     if n > 0:
                         cb += n
                         s = u % ring_n
-                        _pixel_value(row0 + u, start, sdt, spol, hi, lo, lo_bits, phase_xy, yy, u, ring, s)
+                        _pixel_value(row0 + u, start, sdt, spol, hi, lo, lo_bits, rows, cols, yy, u, ring, s)
                         for m in range(d):
                             box[0, m] += ring[s, 0, m]
                             box[1, m] += ring[s, 1, m]
@@ -149,11 +156,11 @@ def box_pass(start, sdt, spol, hi, lo, lo_bits, row_used, phase_xy, k, cum, ccum
 
 
 @njit(cache=True, parallel=True, fastmath=True)
-def target_features(cum, ccum, k, tx, ty, tdt, tpol, slot, phase_xy, hi, lo, lo_bits):  # pragma: no cover
+def target_features(cum, ccum, k, tx, ty, tdt, tpol, slot, rows, cols, hi, lo, lo_bits):  # pragma: no cover
     """Features (T, 2d+1) float32 of the targets; row ``slot[r]`` holds target r.
 
     Window sum = column sum at row ``min(ty + k, H - 1)`` minus the one at row ``ty - k - 1``;
-    then the target's own absolute phase is removed (multiply by ``conj(phase_xy * hi * lo)``),
+    then the target's own absolute phase is removed (multiply by ``conj(phase * hi * lo)``),
     the vector rescaled to norm sqrt(d) and ``log(1 + n)`` appended. Callers pass the targets
     in row order (``slot`` maps back), so the reads walk the grid forward.
     """
@@ -183,13 +190,20 @@ def target_features(cum, ccum, k, tx, ty, tdt, tpol, slot, phase_xy, hi, lo, lo_
                 out[o, m] = cum[y1, xx, 0, m]
                 out[o, d + m] = cum[y1, xx, 1, m]
         s = np.float32(0.0)
+        xr = xx if rows.shape[1] > 1 else 0
         for m in range(d):
             gr = out[o, m]
             gi = out[o, d + m]
             tr = hi[h, 0, m] * lo[q, l, 0, m] - hi[h, 1, m] * lo[q, l, 1, m]
             ti = hi[h, 0, m] * lo[q, l, 1, m] + hi[h, 1, m] * lo[q, l, 0, m]
-            pr = phase_xy[yy, xx, 0, m] * tr - phase_xy[yy, xx, 1, m] * ti
-            pi = -(phase_xy[yy, xx, 0, m] * ti + phase_xy[yy, xx, 1, m] * tr)
+            ar = rows[yy, xr, 0, m]
+            ai = rows[yy, xr, 1, m]
+            br = cols[xx, 0, 0, m]
+            bi = cols[xx, 0, 1, m]
+            sr = ar * br - ai * bi
+            si = ar * bi + ai * br
+            pr = sr * tr - si * ti
+            pi = -(sr * ti + si * tr)
             vr = gr * pr - gi * pi
             vi = gr * pi + gi * pr
             out[o, m] = vr

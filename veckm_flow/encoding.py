@@ -30,7 +30,10 @@ Coordinates: without a calibration, ``x, y`` are raw integer pixels. With one, t
 ``(x, y)`` in ``p`` are the undistorted pixel coordinates of each event's pixel (OpenCV,
 ``P = K``, so still in px), while the *neighbourhood* stays the raw-pixel window: no binning of
 non-integer coordinates is needed because each pixel's spatial phase is looked up from a
-per-pixel table. The network then sees undistorted local geometry, and its output (normal flow
+per-pixel table. Without a calibration that table is never stored: the phase of raw pixel
+``(x, y)`` is the product of a column factor ``exp(i a_x x / s)`` and a row factor
+``exp(i a_y y / s)`` (:class:`SpatialPhase`), so a 1280x720 sensor needs two small tables instead
+of ~0.5 GB built in ~3.5 s. The network then sees undistorted local geometry, and its output (normal flow
 in undistorted px/s) is mapped back to the sensor grid by :func:`undistorted_to_sensor_flow`.
 
 Features (``encode_targets``): float32 ``(T, 2 d + 1)``: real parts, imaginary parts of ``G_i``
@@ -196,6 +199,55 @@ def spatial_phase(
     return np.exp(1j * phase / cfg.xy_scale_px).astype(np.complex64)
 
 
+@dataclass(frozen=True, eq=False)
+class SpatialPhase:
+    """Per-pixel spatial phase in factored, planar float32 form (what the kernels read).
+
+    The phase of pixel ``(x, y)`` is ``rows[y, x or 0] * cols[x, 0]`` (complex product; index
+    ``[..., 0, :]`` real, ``[..., 1, :]`` imaginary parts):
+
+    * separable (raw pixels): ``rows`` ``(H, 1, 2, d)`` = ``exp(i a_y y / s)``, ``cols``
+      ``(W, 1, 2, d)`` = ``exp(i a_x x / s)``;
+    * full (undistorted positions, or a user-supplied table): ``rows`` ``(H, W, 2, d)`` holds
+      every pixel's phase and ``cols`` is all ones.
+    """
+
+    rows: np.ndarray
+    cols: np.ndarray
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        """``(H, W, d)``, the shape of the equivalent :func:`spatial_phase` table."""
+        return (self.rows.shape[0], self.cols.shape[0], self.rows.shape[3])
+
+
+def spatial_phase_factors(
+    cfg: EncodingConfig,
+    sensor_size: tuple[int, int],
+    calibration: "Calibration | None" = None,
+    matrix: np.ndarray | None = None,
+) -> SpatialPhase:
+    """:func:`spatial_phase` as :class:`SpatialPhase`: separable (two small tables) for raw
+    pixels, a full planar table with a calibration. Raw-pixel factors are cached per
+    (config, sensor size, matrix)."""
+    width, height = int(sensor_size[0]), int(sensor_size[1])
+    if calibration is None:
+        key = None if matrix is None else _check_matrix(matrix, cfg).tobytes()
+        return _separable_phase(cfg, width, height, key)
+    full = spatial_phase(cfg, sensor_size, calibration, matrix)
+    ones = np.zeros((width, 1, 2, cfg.d), np.float32)
+    ones[:, :, 0, :] = 1.0
+    return SpatialPhase(rows=_planar(full), cols=ones)
+
+
+@lru_cache(maxsize=8)
+def _separable_phase(cfg: EncodingConfig, width: int, height: int, matrix_bytes: bytes | None) -> SpatialPhase:
+    A = encoding_matrix(cfg) if matrix_bytes is None else np.frombuffer(matrix_bytes).reshape(cfg.n_coords, cfg.d)
+    px = np.exp(1j * np.outer(np.arange(width), A[0]) / cfg.xy_scale_px)
+    py = np.exp(1j * np.outer(np.arange(height), A[1]) / cfg.xy_scale_px)
+    return SpatialPhase(rows=_planar(py[:, None, :]), cols=_planar(px[:, None, :]))
+
+
 def _check_calibration(calibration: "Calibration", sensor_size: tuple[int, int]) -> None:
     if tuple(calibration.sensor_size) != (int(sensor_size[0]), int(sensor_size[1])):
         raise EventDataError(
@@ -250,7 +302,7 @@ def encode_targets(
     sensor_size: tuple[int, int],
     cfg: EncodingConfig,
     calibration: "Calibration | None" = None,
-    phase_xy: np.ndarray | None = None,
+    phase_xy: "np.ndarray | SpatialPhase | None" = None,
     matrix: np.ndarray | None = None,
 ) -> np.ndarray:
     """VecKM-style features of the target events of one slice.
@@ -262,7 +314,8 @@ def encode_targets(
         sensor_size: ``(width, height)`` px.
         cfg: encoding constants.
         calibration: optional; positions then are undistorted pixel coordinates (module doc).
-        phase_xy: optional precomputed :func:`spatial_phase` ``(H, W, d)`` (saves its cost).
+        phase_xy: optional precomputed :func:`spatial_phase` ``(H, W, d)`` or
+            :func:`spatial_phase_factors` (saves their cost; the factors are cheaper).
         matrix: optional ``(3 or 4, d)`` random matrix overriding :func:`encoding_matrix` (an ONNX
             model stores its own, so it does not depend on numpy's generator staying the same).
 
@@ -274,7 +327,7 @@ def encode_targets(
     targets = _validate_targets(targets, len(events))
     width, height = int(sensor_size[0]), int(sensor_size[1])
     if phase_xy is None:
-        phase_xy = spatial_phase(cfg, sensor_size, calibration, matrix)
+        phase_xy = spatial_phase_factors(cfg, sensor_size, calibration, matrix)
     elif phase_xy.shape != (height, width, cfg.d):
         raise EventDataError(f"phase_xy has shape {phase_xy.shape}, expected {(height, width, cfg.d)}")
     if len(targets) == 0:
@@ -294,15 +347,16 @@ def encode_targets(
     nblk = max(1, -(-width // _BLOCK_COLUMNS))
     pol = (events["p"] > 0).astype(np.int8) if cfg.polarity else np.zeros(len(events), np.int8)
     start, sdt, spol, row_used = _kernels.pixel_lists(x, y, dt, pol, width, height)
-    pxy = _planar_phase(phase_xy)
-    _kernels.box_pass(start, sdt, spol, hi, lo, _LO_BITS, row_used, pxy, cfg.window_px, cum, ccum, nblk)
+    ph = phase_xy if isinstance(phase_xy, SpatialPhase) else _planar_phase(phase_xy)
+    _kernels.box_pass(start, sdt, spol, hi, lo, _LO_BITS, row_used, ph.rows, ph.cols, cfg.window_px,
+                      cum, ccum, nblk)
     # Visiting targets in row order walks the box-sum grid forward instead of at random.
     ty = y[targets]
     order = np.argsort(ty, kind="stable")
     st = targets[order]
     return _kernels.target_features(
         cum, ccum, cfg.window_px, x[st].astype(np.int64), ty[order].astype(np.int64), dt[st], pol[st], order,
-        pxy, hi, lo, _LO_BITS,
+        ph.rows, ph.cols, hi, lo, _LO_BITS,
     )
 
 
@@ -330,14 +384,16 @@ def _planar_time_tables(cfg: EncodingConfig, span_us: int, matrix: np.ndarray | 
     return hit
 
 
-def _planar_phase(phase_xy: np.ndarray) -> np.ndarray:
-    """:func:`_planar` of a spatial phase table, cached by identity (the tables are cached
-    and reused, and converting one costs about as much as encoding a slice)."""
+def _planar_phase(phase_xy: np.ndarray) -> SpatialPhase:
+    """A full :func:`spatial_phase` table as :class:`SpatialPhase`, cached by identity (callers
+    reuse their table, and converting one costs about as much as encoding a slice)."""
     key = id(phase_xy)
     hit = _PLANAR_PHASE.get(key)
     if hit is None or hit[0] is not phase_xy:
         _PLANAR_PHASE.clear()
-        hit = _PLANAR_PHASE[key] = (phase_xy, _planar(phase_xy))
+        ones = np.zeros((phase_xy.shape[1], 1, 2, phase_xy.shape[2]), np.float32)
+        ones[:, :, 0, :] = 1.0
+        hit = _PLANAR_PHASE[key] = (phase_xy, SpatialPhase(rows=_planar(phase_xy), cols=ones))
     return hit[1]
 
 

@@ -25,9 +25,10 @@ from evseg.errors import ModelError
 from evseg.events import validate_events
 from evseg.veckm_flow.encoding import (
     EncodingConfig,
+    SpatialPhase,
     _validate_targets,
     encode_targets,
-    spatial_phase,
+    spatial_phase_factors,
     undistorted_to_sensor_flow,
 )
 from evseg.veckm_flow.result import NormalFlow, head_output_to_flow
@@ -110,12 +111,13 @@ class OnnxNormalFlow:
         self._phase_cache: dict = {}
         self.last_timing_s: dict[str, float] = {}
 
-    def _phase(self, sensor_size: tuple[int, int], calibration: "Calibration | None") -> np.ndarray:
+    def _phase(self, sensor_size: tuple[int, int], calibration: "Calibration | None") -> SpatialPhase:
         key = (int(sensor_size[0]), int(sensor_size[1]), id(calibration))
         if key not in self._phase_cache:
             self._phase_cache.clear()  # one sensor / calibration at a time
             # Keep a reference to the calibration so that its id stays unique while cached.
-            self._phase_cache[key] = (spatial_phase(self.cfg, sensor_size, calibration, self.matrix), calibration)
+            self._phase_cache[key] = (spatial_phase_factors(self.cfg, sensor_size, calibration, self.matrix),
+                                     calibration)
         return self._phase_cache[key][0]
 
     def encode(self, events: np.ndarray, sensor_size, targets: np.ndarray, calibration=None) -> np.ndarray:

@@ -166,3 +166,30 @@ def test_polarity_coordinate_matches_reference_and_matters(make_slice):
     assert not np.allclose(fast, plain, atol=1e-2)
     # The polarity row is appended: x, y, t rows are those of the plain encoding.
     np.testing.assert_array_equal(encoding_matrix(cfg)[:3], encoding_matrix(EncodingConfig(d=8, window_px=3, polarity=False)))
+
+
+def test_separable_phase_factors_equal_the_full_table(make_slice):
+    # Raw pixels: the phase is stored as a row and a column factor (H + W rows of d, not
+    # H x W); their product is the full table, and a caller's full table gives the same features.
+    from evseg.veckm_flow.encoding import spatial_phase, spatial_phase_factors
+
+    cfg = EncodingConfig(d=8, window_px=2, seed=3)
+    f = spatial_phase_factors(cfg, (40, 30))
+    assert f.rows.shape == (30, 1, 2, 8) and f.cols.shape == (40, 1, 2, 8) and f.shape == (30, 40, 8)
+    rows = f.rows[:, :, 0] + 1j * f.rows[:, :, 1]  # (H, 1, d)
+    cols = f.cols[:, 0, 0] + 1j * f.cols[:, 0, 1]  # (W, d)
+    np.testing.assert_allclose(rows * cols[None], spatial_phase(cfg, (40, 30)), atol=1e-6)
+    ev = make_slice(800, (40, 30), seed=9)
+    targets = np.arange(0, 800, 5)
+    factored = encode_targets(ev, targets, (40, 30), cfg, phase_xy=f)
+    full = encode_targets(ev, targets, (40, 30), cfg, phase_xy=spatial_phase(cfg, (40, 30)))
+    np.testing.assert_allclose(factored, full, atol=ATOL)
+
+
+def test_phase_table_of_the_wrong_shape_is_refused(make_slice):
+    from evseg.veckm_flow.encoding import spatial_phase_factors
+
+    cfg = EncodingConfig(d=8, window_px=2)
+    ev = make_slice(100, (40, 30))
+    with pytest.raises(EventDataError, match="phase_xy has shape"):
+        encode_targets(ev, np.arange(10), (40, 30), cfg, phase_xy=spatial_phase_factors(cfg, (30, 40)))
