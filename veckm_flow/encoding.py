@@ -33,7 +33,7 @@ non-integer coordinates is needed because each pixel's spatial phase is looked u
 per-pixel table. Without a calibration that table is never stored: the phase of raw pixel
 ``(x, y)`` is the product of a column factor ``exp(i a_x x / s)`` and a row factor
 ``exp(i a_y y / s)`` (:class:`SpatialPhase`), so a 1280x720 sensor needs two small tables instead
-of ~0.5 GB built in ~3.5 s. The network then sees undistorted local geometry, and its output (normal flow
+of ~0.5 GB of per-pixel tables (d = 32; more while building them, ~3.5 s). The network then sees undistorted local geometry, and its output (normal flow
 in undistorted px/s) is mapped back to the sensor grid by :func:`undistorted_to_sensor_flow`.
 
 Features (``encode_targets``): float32 ``(T, 2 d + 1)``: real parts, imaginary parts of ``G_i``
@@ -234,10 +234,14 @@ def spatial_phase_factors(
     if calibration is None:
         key = None if matrix is None else _check_matrix(matrix, cfg).tobytes()
         return _separable_phase(cfg, width, height, key)
-    full = spatial_phase(cfg, sensor_size, calibration, matrix)
-    ones = np.zeros((width, 1, 2, cfg.d), np.float32)
+    return _full_phase(spatial_phase(cfg, sensor_size, calibration, matrix))
+
+
+def _full_phase(table: np.ndarray) -> SpatialPhase:
+    """A complex ``(H, W, d)`` phase table as :class:`SpatialPhase` (``cols`` all ones)."""
+    ones = np.zeros((table.shape[1], 1, 2, table.shape[2]), np.float32)
     ones[:, :, 0, :] = 1.0
-    return SpatialPhase(rows=_planar(full), cols=ones)
+    return SpatialPhase(rows=_planar(table), cols=ones)
 
 
 @lru_cache(maxsize=8)
@@ -391,9 +395,7 @@ def _planar_phase(phase_xy: np.ndarray) -> SpatialPhase:
     hit = _PLANAR_PHASE.get(key)
     if hit is None or hit[0] is not phase_xy:
         _PLANAR_PHASE.clear()
-        ones = np.zeros((phase_xy.shape[1], 1, 2, phase_xy.shape[2]), np.float32)
-        ones[:, :, 0, :] = 1.0
-        hit = _PLANAR_PHASE[key] = (phase_xy, SpatialPhase(rows=_planar(phase_xy), cols=ones))
+        hit = _PLANAR_PHASE[key] = (phase_xy, _full_phase(phase_xy))
     return hit[1]
 
 
