@@ -47,6 +47,18 @@ def pixel_lists(x, y, dt, pol, width, height):  # pragma: no cover
 
 
 @njit(cache=True, fastmath=True, inline="always")
+def _spatial_phase(rows, cols, yy, xx, m):  # pragma: no cover
+    """Feature ``m`` of the spatial phase of pixel ``(xx, yy)``: ``rows[yy, xx or 0] *
+    cols[xx, 0]`` (``encoding.SpatialPhase``), as (real, imaginary)."""
+    xr = xx if rows.shape[1] > 1 else 0
+    ar = rows[yy, xr, 0, m]
+    ai = rows[yy, xr, 1, m]
+    br = cols[xx, 0, 0, m]
+    bi = cols[xx, 0, 1, m]
+    return ar * br - ai * bi, ar * bi + ai * br
+
+
+@njit(cache=True, fastmath=True, inline="always")
 def _pixel_value(p, start, sdt, spol, hi, lo, lo_bits, rows, cols, yy, u, out, slot):  # pragma: no cover
     """``out[slot] = phase(yy, u) * sum over the pixel's events of hi * lo`` (planar), with
     ``phase(yy, u) = rows[yy, u or 0] * cols[u, 0]`` (``encoding.SpatialPhase``)."""
@@ -62,16 +74,10 @@ def _pixel_value(p, start, sdt, spol, hi, lo, lo_bits, rows, cols, yy, u, out, s
         for m in range(d):
             out[slot, 0, m] += hi[h, 0, m] * lo[b, l, 0, m] - hi[h, 1, m] * lo[b, l, 1, m]
             out[slot, 1, m] += hi[h, 0, m] * lo[b, l, 1, m] + hi[h, 1, m] * lo[b, l, 0, m]
-    ur = u if rows.shape[1] > 1 else 0
     for m in range(d):
         fr = out[slot, 0, m]
         fi = out[slot, 1, m]
-        ar = rows[yy, ur, 0, m]
-        ai = rows[yy, ur, 1, m]
-        br = cols[u, 0, 0, m]
-        bi = cols[u, 0, 1, m]
-        pr = ar * br - ai * bi
-        pi = ar * bi + ai * br
+        pr, pi = _spatial_phase(rows, cols, yy, u, m)
         out[slot, 0, m] = fr * pr - fi * pi
         out[slot, 1, m] = fr * pi + fi * pr
 
@@ -190,18 +196,12 @@ def target_features(cum, ccum, k, tx, ty, tdt, tpol, slot, rows, cols, hi, lo, l
                 out[o, m] = cum[y1, xx, 0, m]
                 out[o, d + m] = cum[y1, xx, 1, m]
         s = np.float32(0.0)
-        xr = xx if rows.shape[1] > 1 else 0
         for m in range(d):
             gr = out[o, m]
             gi = out[o, d + m]
             tr = hi[h, 0, m] * lo[q, l, 0, m] - hi[h, 1, m] * lo[q, l, 1, m]
             ti = hi[h, 0, m] * lo[q, l, 1, m] + hi[h, 1, m] * lo[q, l, 0, m]
-            ar = rows[yy, xr, 0, m]
-            ai = rows[yy, xr, 1, m]
-            br = cols[xx, 0, 0, m]
-            bi = cols[xx, 0, 1, m]
-            sr = ar * br - ai * bi
-            si = ar * bi + ai * br
+            sr, si = _spatial_phase(rows, cols, yy, xx, m)
             pr = sr * tr - si * ti
             pi = -(sr * ti + si * tr)
             vr = gr * pr - gi * pi
