@@ -25,8 +25,10 @@ construction of a spatial graph via Delaunay triangulation". Here:
 * Nodes whose positions coincide exactly (possible only with ``cell_px = 0``) are merged by
   the same rule, so the triangulation never sees duplicates.
 * Graph: edges of the 2D Delaunay triangulation of node positions, as an (E, 2) int64 array,
-  unique, each row (i, j) with i < j. Degenerate inputs are defined: 0 or 1 node -> no edge;
-  2 nodes -> one edge; all nodes collinear (Qhull fails) -> a chain along the line.
+  unique, each row (i, j) with i < j. The triangulation is a compiled sweep-hull
+  (:mod:`._delaunay`, ~6x faster than Qhull); Qhull takes over for the rare window the sweep
+  cannot complete. Degenerate inputs are defined: 0 or 1 node -> no edge; 2 nodes -> one
+  edge; all nodes collinear -> a chain along the line.
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from evseg.segmentation._delaunay import sweep_delaunay
 from evseg.segmentation._kernels import confirmed_flows, triangle_edges
 
 CELL_RULES = ("confirmed", "preferred")
@@ -174,8 +177,15 @@ def delaunay_edges(x: np.ndarray, y: np.ndarray) -> np.ndarray:
         # the result is a Delaunay triangulation of the original points with ties resolved.
         h = (np.arange(n) * 0.6180339887498949) % 1.0
         jitter = np.column_stack([h - 0.5, (h * 7.3) % 1.0 - 0.5]) * 1e-3
+        pts = pts + jitter
+        # The compiled sweep-hull is ~6x faster than Qhull (1.2 against 7.1 ms at 3.3 k nodes);
+        # Qhull takes over for a window whose points the sweep cannot all insert
+        # (near-degenerate float cases; see _delaunay.py).
+        simplices, neighbors, inserted = sweep_delaunay(pts[:, 0].copy(), pts[:, 1].copy())
+        if inserted == n:
+            return triangle_edges(simplices, neighbors, n)
         try:
-            tri = Delaunay(pts + jitter)
+            tri = Delaunay(pts)
         except QhullError:
             tri = None
         if tri is not None:
