@@ -10,8 +10,9 @@ Complex values are stored planar, ``[..., 0, m]`` real and ``[..., 1, m]`` imagi
 LLVM vectorises (numba's interleaved complex64 arithmetic does not, and ran ~4x slower).
 
 The per-pixel complex field is never stored: events are sorted by pixel (counting sort, O(N))
-and each pixel's value is computed when the box pass reaches it. Only the box sums live in a
-reusable workspace ``(H, W, 2, d)``, fully overwritten by each pass (no memset per slice).
+and each pixel's value is computed when the pass reaches it. Only the box sums of the last
+2k+1 rows of a block of columns are kept (a ring per thread, a few hundred KB), and each
+target's features are taken from that ring as soon as its window is complete.
 """
 
 from __future__ import annotations
@@ -82,137 +83,146 @@ def _pixel_value(p, start, sdt, spol, hi, lo, lo_bits, rows, cols, yy, u, out, s
         out[slot, 1, m] = fr * pi + fi * pr
 
 
-@njit(cache=True, parallel=True, fastmath=True)
-def box_pass(start, sdt, spol, hi, lo, lo_bits, row_used, rows, cols, k, cum, ccum, nblk):  # pragma: no cover
-    """One pass over the grid: ``cum[y, x]`` = sum over rows ``<= y`` of the box sums along x
-    (``|dx| <= k``) of the per-pixel field ``phase * sum_events hi * lo`` (phase from ``rows``,
-    ``cols``: see ``_pixel_value``); ``ccum`` the same
-    for the event counts.
+@njit(cache=True, fastmath=True, inline="always")
+def _row_box(start, sdt, spol, hi, lo, lo_bits, rows, cols, k, yy, x0, x1, W, ring, box, out, cnt):  # pragma: no cover
+    """Row ``yy``'s box sums along x (``|dx| <= k``) of the per-pixel field ``phase * sum_events
+    hi * lo`` for columns ``x0 <= x < x1``: ``out[x - x0]`` (planar) and counts ``cnt[x - x0]``.
 
     The field is never stored: a pixel's value is computed from its events (``pixel_lists``)
-    when it enters the sliding box along x and kept in a small ring buffer until it leaves, so
-    the events are read in pixel order from a compact index instead of being scattered into a
-    W x H x d grid. The running sums along y only accumulate row-box sums (bounded by the
-    events of a 2k+1 pixel wide strip), which keeps float32 rounding small. Threads own blocks
-    of columns and also evaluate the k columns beyond their block.
+    when it enters the sliding box and kept in the small ``ring`` until it leaves, so only
+    pixels with events cost anything."""
+    d = box.shape[1]
+    ring_n = ring.shape[0]
+    row0 = yy * W
+    for m in range(d):
+        box[0, m] = 0.0
+        box[1, m] = 0.0
+    cb = 0
+    for u in range(max(x0 - 1 - k, 0), min(x0 - 1 + k, W - 1) + 1):
+        n = start[row0 + u + 1] - start[row0 + u]
+        if n > 0:
+            cb += n
+            s = u % ring_n
+            _pixel_value(row0 + u, start, sdt, spol, hi, lo, lo_bits, rows, cols, yy, u, ring, s)
+            for m in range(d):
+                box[0, m] += ring[s, 0, m]
+                box[1, m] += ring[s, 1, m]
+    for xx in range(x0, x1):
+        u = xx + k
+        if u < W:
+            n = start[row0 + u + 1] - start[row0 + u]
+            if n > 0:
+                cb += n
+                s = u % ring_n
+                _pixel_value(row0 + u, start, sdt, spol, hi, lo, lo_bits, rows, cols, yy, u, ring, s)
+                for m in range(d):
+                    box[0, m] += ring[s, 0, m]
+                    box[1, m] += ring[s, 1, m]
+        u = xx - k - 1
+        if u >= 0:
+            n = start[row0 + u + 1] - start[row0 + u]
+            if n > 0:
+                cb -= n
+                s = u % ring_n
+                for m in range(d):
+                    box[0, m] -= ring[s, 0, m]
+                    box[1, m] -= ring[s, 1, m]
+        cnt[xx - x0] = cb
+        for m in range(d):
+            out[xx - x0, 0, m] = box[0, m]
+            out[xx - x0, 1, m] = box[1, m]
+
+
+@njit(cache=True, fastmath=True, inline="always")
+def _emit(r, o, xx, yy, y_lo, y_hi, x0, row_sums, row_cnt, tdt, tpol, rows, cols, hi, lo, lo_bits, out):  # pragma: no cover
+    """Features of target ``r`` (pixel ``(xx, yy)``) into ``out[o]``: the sum of the row box sums
+    of rows ``y_lo..y_hi`` (held in the row ring), times ``conj(phase * hi * lo)`` of the target
+    itself, rescaled to norm sqrt(d), then ``log(1 + n)``."""
+    d = hi.shape[2]
+    nrow = row_sums.shape[0]
+    mask = (1 << lo_bits) - 1
+    c = xx - x0
+    for m in range(d):
+        out[o, m] = 0.0
+        out[o, d + m] = 0.0
+    cnt = 0
+    for row in range(y_lo, y_hi + 1):
+        sl = row % nrow
+        cnt += row_cnt[sl, c]
+        for m in range(d):
+            out[o, m] += row_sums[sl, c, 0, m]
+            out[o, d + m] += row_sums[sl, c, 1, m]
+    h = tdt[r] >> lo_bits
+    l = tdt[r] & mask
+    q = tpol[r]
+    s = np.float32(0.0)
+    for m in range(d):
+        gr = out[o, m]
+        gi = out[o, d + m]
+        tr = hi[h, 0, m] * lo[q, l, 0, m] - hi[h, 1, m] * lo[q, l, 1, m]
+        ti = hi[h, 0, m] * lo[q, l, 1, m] + hi[h, 1, m] * lo[q, l, 0, m]
+        sr, si = _spatial_phase(rows, cols, yy, xx, m)
+        pr = sr * tr - si * ti
+        pi = -(sr * ti + si * tr)
+        vr = gr * pr - gi * pi
+        vi = gr * pi + gi * pr
+        out[o, m] = vr
+        out[o, d + m] = vi
+        s += vr * vr + vi * vi
+    f = np.float32(np.sqrt(np.float32(d))) / max(np.sqrt(s), np.float32(1e-12))
+    for m in range(2 * d):
+        out[o, m] *= f
+    out[o, 2 * d] = np.log1p(np.float32(cnt))
+
+
+@njit(cache=True, parallel=True, fastmath=True)
+def window_features(start, sdt, spol, hi, lo, lo_bits, row_used, rows, cols, k, nblk,
+                    tx, ty, tdt, tpol, slot, blk_start):  # pragma: no cover
+    """Features (T, 2d+1) float32 of the targets: for each, the sum over its (2k+1)^2 pixel
+    window of ``phase * sum_events hi * lo``, with its own phase removed; row ``slot[r]``
+    holds target r.
+
+    One pass down the rows per block of columns (threads own blocks; block c spans columns
+    ``c W // nblk`` to ``(c + 1) W // nblk``). Each row's box sums along x go into a ring of
+    the last 2k+1 rows; a target's window is complete when the pass reaches row ``ty + k``,
+    and its features are summed from the ring right then. So no H x W x d grid of running sums
+    is written and read back (23 MB per slice at 346x260, d = 32; that traffic was most of the
+    encoding time), and each window sum is a fresh sum of 2k+1 rows rather than a difference
+    of two long running sums (less float32 rounding). Targets come grouped by block
+    (``blk_start``) and sorted by row within a block.
     """
-    H, W = ccum.shape
-    d = cum.shape[3]
-    ring_n = 2 * k + 2
+    H = row_used.shape[0]
+    W = (start.shape[0] - 1) // H
+    d = hi.shape[2]
+    nt = tx.shape[0]
+    out = np.empty((nt, 2 * d + 1), np.float32)
+    nrow = 2 * k + 1
     for c in prange(nblk):
         x0 = c * W // nblk
         x1 = (c + 1) * W // nblk
+        bw = x1 - x0
         box = np.empty((2, d), np.float32)
-        ring = np.empty((ring_n, 2, d), np.float32)
+        ring = np.empty((2 * k + 2, 2, d), np.float32)
+        row_sums = np.zeros((nrow, bw, 2, d), np.float32)
+        row_cnt = np.zeros((nrow, bw), np.int64)
+        r = blk_start[c]
+        r_end = blk_start[c + 1]
         for yy in range(H):
-            if not row_used[yy]:
-                for xx in range(x0, x1):
-                    ccum[yy, xx] = 0 if yy == 0 else ccum[yy - 1, xx]
-                    for m in range(d):
-                        cum[yy, xx, 0, m] = 0.0 if yy == 0 else cum[yy - 1, xx, 0, m]
-                        cum[yy, xx, 1, m] = 0.0 if yy == 0 else cum[yy - 1, xx, 1, m]
-                continue
-            row0 = yy * W
-            # Sliding box along x: start with the window of column x0 - 1, then per column add
-            # the pixel entering at x + k and remove the one leaving at x - k - 1 (only pixels
-            # with events contribute, so empty pixels cost nothing here).
-            for m in range(d):
-                box[0, m] = 0.0
-                box[1, m] = 0.0
-            cb = 0
-            for u in range(max(x0 - 1 - k, 0), min(x0 - 1 + k, W - 1) + 1):
-                n = start[row0 + u + 1] - start[row0 + u]
-                if n > 0:
-                    cb += n
-                    s = u % ring_n
-                    _pixel_value(row0 + u, start, sdt, spol, hi, lo, lo_bits, rows, cols, yy, u, ring, s)
-                    for m in range(d):
-                        box[0, m] += ring[s, 0, m]
-                        box[1, m] += ring[s, 1, m]
-            for xx in range(x0, x1):
-                u = xx + k
-                if u < W:
-                    n = start[row0 + u + 1] - start[row0 + u]
-                    if n > 0:
-                        cb += n
-                        s = u % ring_n
-                        _pixel_value(row0 + u, start, sdt, spol, hi, lo, lo_bits, rows, cols, yy, u, ring, s)
-                        for m in range(d):
-                            box[0, m] += ring[s, 0, m]
-                            box[1, m] += ring[s, 1, m]
-                u = xx - k - 1
-                if u >= 0:
-                    n = start[row0 + u + 1] - start[row0 + u]
-                    if n > 0:
-                        cb -= n
-                        s = u % ring_n
-                        for m in range(d):
-                            box[0, m] -= ring[s, 0, m]
-                            box[1, m] -= ring[s, 1, m]
-                if yy == 0:
-                    ccum[yy, xx] = cb
-                    for m in range(d):
-                        cum[yy, xx, 0, m] = box[0, m]
-                        cum[yy, xx, 1, m] = box[1, m]
-                else:
-                    ccum[yy, xx] = ccum[yy - 1, xx] + cb
-                    for m in range(d):
-                        cum[yy, xx, 0, m] = cum[yy - 1, xx, 0, m] + box[0, m]
-                        cum[yy, xx, 1, m] = cum[yy - 1, xx, 1, m] + box[1, m]
-
-
-@njit(cache=True, parallel=True, fastmath=True)
-def target_features(cum, ccum, k, tx, ty, tdt, tpol, slot, rows, cols, hi, lo, lo_bits):  # pragma: no cover
-    """Features (T, 2d+1) float32 of the targets; row ``slot[r]`` holds target r.
-
-    Window sum = column sum at row ``min(ty + k, H - 1)`` minus the one at row ``ty - k - 1``;
-    then the target's own absolute phase is removed (multiply by ``conj(phase * hi * lo)``),
-    the vector rescaled to norm sqrt(d) and ``log(1 + n)`` appended. Callers pass the targets
-    in row order (``slot`` maps back), so the reads walk the grid forward.
-    """
-    H = ccum.shape[0]
-    d = cum.shape[3]
-    mask = (1 << lo_bits) - 1
-    nt = tx.shape[0]
-    out = np.empty((nt, 2 * d + 1), np.float32)
-    scale = np.sqrt(np.float32(d))
-    for r in prange(nt):
-        o = slot[r]
-        xx = tx[r]
-        yy = ty[r]
-        y1 = min(yy + k, H - 1)
-        y0 = yy - k - 1
-        h = tdt[r] >> lo_bits
-        l = tdt[r] & mask
-        q = tpol[r]
-        cnt = ccum[y1, xx]
-        if y0 >= 0:
-            cnt -= ccum[y0, xx]
-            for m in range(d):
-                out[o, m] = cum[y1, xx, 0, m] - cum[y0, xx, 0, m]
-                out[o, d + m] = cum[y1, xx, 1, m] - cum[y0, xx, 1, m]
-        else:
-            for m in range(d):
-                out[o, m] = cum[y1, xx, 0, m]
-                out[o, d + m] = cum[y1, xx, 1, m]
-        s = np.float32(0.0)
-        for m in range(d):
-            gr = out[o, m]
-            gi = out[o, d + m]
-            tr = hi[h, 0, m] * lo[q, l, 0, m] - hi[h, 1, m] * lo[q, l, 1, m]
-            ti = hi[h, 0, m] * lo[q, l, 1, m] + hi[h, 1, m] * lo[q, l, 0, m]
-            sr, si = _spatial_phase(rows, cols, yy, xx, m)
-            pr = sr * tr - si * ti
-            pi = -(sr * ti + si * tr)
-            vr = gr * pr - gi * pi
-            vi = gr * pi + gi * pr
-            out[o, m] = vr
-            out[o, d + m] = vi
-            s += vr * vr + vi * vi
-        f = scale / max(np.sqrt(s), np.float32(1e-12))
-        for m in range(2 * d):
-            out[o, m] *= f
-        out[o, 2 * d] = np.log1p(np.float32(cnt))
+            sl = yy % nrow
+            if row_used[yy]:
+                _row_box(start, sdt, spol, hi, lo, lo_bits, rows, cols, k, yy, x0, x1, W, ring, box,
+                         row_sums[sl], row_cnt[sl])
+            else:
+                row_sums[sl] = 0.0
+                row_cnt[sl] = 0
+            while r < r_end and ty[r] + k <= yy:
+                _emit(r, slot[r], tx[r], ty[r], max(ty[r] - k, 0), yy, x0, row_sums, row_cnt,
+                      tdt, tpol, rows, cols, hi, lo, lo_bits, out)
+                r += 1
+        while r < r_end:  # windows cut by the bottom edge: rows ty - k .. H - 1
+            _emit(r, slot[r], tx[r], ty[r], max(ty[r] - k, 0), H - 1, x0, row_sums, row_cnt,
+                  tdt, tpol, rows, cols, hi, lo, lo_bits, out)
+            r += 1
     return out
 
 

@@ -343,7 +343,6 @@ def encode_targets(
     t = np.ascontiguousarray(events["t"])
     dt = t - t.min()  # int64 us since the slice's first event, exact
     hi, lo = _planar_time_tables(cfg, int(dt.max()), matrix)
-    cum, ccum = _workspace(height, width, cfg.d)
     # Column blocks of a fixed width, not one per thread: each block restarts its sliding
     # float32 sums, so a thread-dependent split would make the features (and every label
     # downstream) depend on the thread count. Each block re-reads 2 k + 1 columns per row
@@ -352,19 +351,20 @@ def encode_targets(
     pol = (events["p"] > 0).astype(np.int8) if cfg.polarity else np.zeros(len(events), np.int8)
     start, sdt, spol, row_used = _kernels.pixel_lists(x, y, dt, pol, width, height)
     ph = phase_xy if isinstance(phase_xy, SpatialPhase) else _planar_phase(phase_xy)
-    _kernels.box_pass(start, sdt, spol, hi, lo, _LO_BITS, row_used, ph.rows, ph.cols, cfg.window_px,
-                      cum, ccum, nblk)
-    # Visiting targets in row order walks the box-sum grid forward instead of at random.
-    ty = y[targets]
-    order = np.argsort(ty, kind="stable")
+    # Targets grouped by the column block that owns them, in row order within a block (the
+    # order in which the pass completes their windows); ``order`` maps back.
+    tx, ty = x[targets].astype(np.int64), y[targets].astype(np.int64)
+    bounds = np.arange(nblk + 1, dtype=np.int64) * width // nblk
+    blk = np.searchsorted(bounds, tx, side="right") - 1
+    order = np.lexsort((ty, blk))
+    blk_start = np.searchsorted(blk[order], np.arange(nblk + 1)).astype(np.int64)
     st = targets[order]
-    return _kernels.target_features(
-        cum, ccum, cfg.window_px, x[st].astype(np.int64), ty[order].astype(np.int64), dt[st], pol[st], order,
-        ph.rows, ph.cols, hi, lo, _LO_BITS,
+    return _kernels.window_features(
+        start, sdt, spol, hi, lo, _LO_BITS, row_used, ph.rows, ph.cols, cfg.window_px, nblk,
+        tx[order], ty[order], dt[st], pol[st], order, blk_start,
     )
 
 
-_WORKSPACE: dict = {}
 _TIME_TABLES: dict = {}
 _PLANAR_PHASE: dict = {}
 
@@ -397,17 +397,6 @@ def _planar_phase(phase_xy: np.ndarray) -> SpatialPhase:
         _PLANAR_PHASE.clear()
         hit = _PLANAR_PHASE[key] = (phase_xy, _full_phase(phase_xy))
     return hit[1]
-
-
-def _workspace(height: int, width: int, d: int) -> tuple[np.ndarray, np.ndarray]:
-    """Reused per-shape buffers for the box sums: (H, W, 2, d) float32 (planar complex) and
-    counts (H, W) int64, fully overwritten by each pass. Not thread-safe: one slice at a time per
-    process (the kernels themselves run multi-threaded)."""
-    key = (height, width, d)
-    if key not in _WORKSPACE:
-        _WORKSPACE.clear()  # keep one sensor's buffers only
-        _WORKSPACE[key] = (np.empty((height, width, 2, d), np.float32), np.empty((height, width), np.int64))
-    return _WORKSPACE[key]
 
 
 def encode_targets_reference(

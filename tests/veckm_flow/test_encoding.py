@@ -22,6 +22,25 @@ def test_fast_encoding_matches_direct_window_sum(k, n, make_slice):
     np.testing.assert_allclose(fast, ref, atol=ATOL)
 
 
+def test_windows_across_column_blocks_and_sensor_edges_match_direct_sum(make_slice):
+    # 250 px wide: three column blocks of the grid pass (96 px blocks), so windows straddle
+    # block boundaries; every pixel of the first and last rows and of the block-boundary
+    # columns is a target, so windows cut by the top and bottom edges are covered too.
+    from evseg.veckm_flow.encoding import _BLOCK_COLUMNS
+
+    w, h = 250, 16
+    assert w > 2 * _BLOCK_COLUMNS
+    cfg = EncodingConfig(d=8, window_px=3, seed=2)
+    ev = make_slice(6000, (w, h), seed=5)
+    x, y = ev["x"].astype(int), ev["y"].astype(int)
+    edge_cols = {0, w - 1} | {c * w // 3 + o for c in (1, 2) for o in (-1, 0, 1)}
+    targets = np.flatnonzero((y == 0) | (y == h - 1) | np.isin(x, sorted(edge_cols)))
+    assert len(targets) > 200
+    fast = encode_targets(ev, targets, (w, h), cfg)
+    ref = encode_targets_reference(ev, targets, (w, h), cfg)
+    np.testing.assert_allclose(fast, ref, atol=ATOL)
+
+
 def test_features_have_vecKM_norm_and_count(make_slice):
     cfg = EncodingConfig(d=16, window_px=2)
     ev = make_slice(300, (20, 10))
