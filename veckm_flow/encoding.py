@@ -12,14 +12,15 @@ factorises into ``exp(-i A^T p_i) * sum_j exp(i A^T p_j)``: the second factor is
 per-pixel complex field ``F(x, y) = sum_{j at (x, y)} exp(i A^T p_j)`` (method.md section 3).
 The events are counting-sorted by pixel (O(N)); one pass down the pixel grid then slides a box
 along each row (a pixel's field value is computed from its events when it enters the box) and
-accumulates the row-box sums down each column; a target's window sum is the difference of that
-column sum at the window's last row and at the row above its first. So a target costs O(d)
-whatever the window size, and the whole encoding costs O(N d + W H d + T d): linear in events,
-no N x N adjacency (compiled loops in :mod:`evseg.veckm_flow._kernels`).
+keeps the row-box sums of the last ``2k+1`` rows in a ring; when the pass reaches a target's
+last window row, the target's window sum is the sum of those ``2k+1`` row-box sums at its
+column. So a target costs O(k d) and the whole encoding O(N d + W H d + T k d): linear in
+events, no N x N adjacency, no H x W x d buffer (compiled loops in
+:mod:`evseg.veckm_flow._kernels`).
 
-Precision: float32 (complex64). The column running sums only accumulate row-box sums (bounded
-by the events of a ``2k+1`` pixel wide strip), not the whole image as a 2-D summed-area table
-would, so float32 rounding stays far below one event's contribution.
+Precision: float32 (complex64). Each window sum is a fresh sum of ``2k+1`` row-box sums
+(each bounded by the events of a ``2k+1`` pixel wide strip), so float32 rounding stays far
+below one event's contribution.
 
 Time: ``t`` enters only through differences; internally it is taken relative to the slice's
 first event (integer microseconds, exact) and the per-event phase ``exp(i a_t t / t_scale_us)``
