@@ -84,6 +84,20 @@ def _pixel_value(p, start, sdt, spol, hi, lo, lo_bits, rows, cols, yy, u, out, s
 
 
 @njit(cache=True, fastmath=True, inline="always")
+def _enter_box(start, sdt, spol, hi, lo, lo_bits, rows, cols, yy, u, row0, ring, box):  # pragma: no cover
+    """Pixel ``(u, yy)`` enters the sliding box: its value goes to its ``ring`` slot and is
+    added to ``box``; returns its event count (0: nothing to do)."""
+    n = start[row0 + u + 1] - start[row0 + u]
+    if n > 0:
+        s = u % ring.shape[0]
+        _pixel_value(row0 + u, start, sdt, spol, hi, lo, lo_bits, rows, cols, yy, u, ring, s)
+        for m in range(box.shape[1]):
+            box[0, m] += ring[s, 0, m]
+            box[1, m] += ring[s, 1, m]
+    return n
+
+
+@njit(cache=True, fastmath=True, inline="always")
 def _row_box(start, sdt, spol, hi, lo, lo_bits, rows, cols, k, yy, x0, x1, W, ring, box, out, cnt):  # pragma: no cover
     """Row ``yy``'s box sums along x (``|dx| <= k``) of the per-pixel field ``phase * sum_events
     hi * lo`` for columns ``x0 <= x < x1``: ``out[x - x0]`` (planar) and counts ``cnt[x - x0]``.
@@ -99,25 +113,11 @@ def _row_box(start, sdt, spol, hi, lo, lo_bits, rows, cols, k, yy, x0, x1, W, ri
         box[1, m] = 0.0
     cb = 0
     for u in range(max(x0 - 1 - k, 0), min(x0 - 1 + k, W - 1) + 1):
-        n = start[row0 + u + 1] - start[row0 + u]
-        if n > 0:
-            cb += n
-            s = u % ring_n
-            _pixel_value(row0 + u, start, sdt, spol, hi, lo, lo_bits, rows, cols, yy, u, ring, s)
-            for m in range(d):
-                box[0, m] += ring[s, 0, m]
-                box[1, m] += ring[s, 1, m]
+        cb += _enter_box(start, sdt, spol, hi, lo, lo_bits, rows, cols, yy, u, row0, ring, box)
     for xx in range(x0, x1):
         u = xx + k
         if u < W:
-            n = start[row0 + u + 1] - start[row0 + u]
-            if n > 0:
-                cb += n
-                s = u % ring_n
-                _pixel_value(row0 + u, start, sdt, spol, hi, lo, lo_bits, rows, cols, yy, u, ring, s)
-                for m in range(d):
-                    box[0, m] += ring[s, 0, m]
-                    box[1, m] += ring[s, 1, m]
+            cb += _enter_box(start, sdt, spol, hi, lo, lo_bits, rows, cols, yy, u, row0, ring, box)
         u = xx - k - 1
         if u >= 0:
             n = start[row0 + u + 1] - start[row0 + u]
