@@ -259,8 +259,8 @@ def sweep_delaunay(px, py):  # pragma: no cover
         # forward: i sees q -> next
         nxt = hull_next[q]
         while _cross(px[q], py[q], px[nxt], py[nxt], x, y) < 0.0:
-            # triangle (nxt, q, i): twins of nxt->q: none yet (hull edge q->nxt is hull_tri[q]);
-            # its edges: nxt->q (twin hull_tri[q]), q->i (twin hull_tri[i]), i->nxt (new hull)
+            # triangle (nxt, q, i): nxt->q (twin: hull edge hull_tri[q]), q->i (twin: hull edge
+            # hull_tri[i]), i->nxt (new hull edge)
             h = _add_triangle(n_tri, nxt, q, i, hull_tri[q], hull_tri[i], -1, tri, twin)
             n_tri += 1
             hull_tri[i] = h + 2
@@ -268,7 +268,8 @@ def sweep_delaunay(px, py):  # pragma: no cover
             _legalize(h, px, py, tri, twin, hull_tri, stack)
             q = nxt
             nxt = hull_next[q]
-        # backward: i sees prev -> e
+        # backward: i sees prev -> e (only possible when the forward search found its first
+        # visible edge right at its start; otherwise the edges before e were seen not visible)
         if e == start:
             prv = hull_prev[e]
             while _cross(px[prv], py[prv], px[e], py[e], x, y) < 0.0:
