@@ -1,4 +1,5 @@
-"""Accuracy evaluation: run a stage on held-out simulated scenes and write a markdown table.
+"""Accuracy evaluation: run a stage on held-out simulated scenes (or, for ``flow-real`` and
+``pipeline-real``, on the shared real recordings) and write a markdown table.
 
 Each target is a function ``evaluate(quick: bool) -> list[dict]`` in the stage's package,
 returning one row per scene (or preset) and a final summary row. Simulated scenes for
@@ -20,6 +21,7 @@ TARGETS = {
     "flow": "evseg.train.evaluate:evaluate_flow",
     "flow-real": "evseg.train.evaluate:evaluate_flow_real",
     "pipeline": "evseg.pipeline_eval:evaluate_pipeline",
+    "pipeline-real": "evseg.pipeline_real:evaluate_pipeline_real",
 }
 
 
