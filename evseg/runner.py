@@ -84,6 +84,27 @@ def _closing(writer, windows_done):
     writer.close()
 
 
+def _progress_bar_kwargs(span: tuple[int, int] | None) -> dict:
+    """tqdm settings: progress in seconds of recording, out of its duration when the format
+    tells it (the rate is then the real-time factor, recording s per wall s)."""
+    # tqdm's own rate would print "5.0s/s" (wall s per recording s) below 1x; the postfix
+    # states the real-time factor instead.
+    kw = dict(desc="segment", unit="s", postfix="0 windows")
+    if span is None or span[1] <= span[0]:
+        return {**kw, "bar_format": "{desc}: {n:.2f} s of recording [{elapsed}{postfix}]"}
+    return {**kw, "total": (span[1] - span[0]) / 1e6,
+            "bar_format": "{desc}: {percentage:3.0f}%|{bar}| {n:.2f}/{total:.2f} s of recording "
+                          "[{elapsed}<{remaining}{postfix}]"}
+
+
+def _advance(bar, t_us: int, origin_us: int, n_windows: int) -> None:
+    """Move the bar to recording time ``t_us`` (us; ``origin_us`` is its zero)."""
+    bar.update(max((t_us - origin_us) / 1e6 - bar.n, 0.0))
+    elapsed = bar.format_dict["elapsed"]
+    rtf = f"{bar.n / elapsed:.2f}x real time, " if elapsed > 0 else ""
+    bar.set_postfix_str(f"{rtf}{n_windows} windows", refresh=False)
+
+
 def run_segment_job(job: SegmentJob) -> str:
     """Run the job; returns a one-paragraph summary for the terminal."""
     from tqdm import tqdm
@@ -117,9 +138,11 @@ def run_segment_job(job: SegmentJob) -> str:
         n_windows = n_objects = 0
         ids: set[int] = set()
         writer = ResultWriter(job.out, None, rec.sensor_size, config_yaml(cfg), with_masks=job.masks)
+        span = rec.time_span_us()
+        origin = span[0] if span is not None else None  # bar zero: first event, else first window
         with _closing(writer, lambda: n_windows > 0), \
                 VideoSink(job.video, job.frames) as sink, \
-                tqdm(desc="segment", unit="win", disable=not job.progress) as bar:
+                tqdm(**_progress_bar_kwargs(span), disable=not job.progress) as bar:
             seen = [0]
 
             def counted(chunks):
@@ -143,7 +166,9 @@ def run_segment_job(job: SegmentJob) -> str:
                 n_windows += 1
                 n_objects += len(res.boxes)
                 ids.update(res.boxes)
-                bar.update(1)
+                if origin is None:
+                    origin = res.t0_us
+                _advance(bar, res.t1_us if span is None else min(res.t1_us, span[1]), origin, n_windows)
             writer.add_unassigned(seen[0] - writer.n_written)  # events after the last window
             if flow is not None and len(flow["index"]) and flow["index"][-1] >= writer.n_written:
                 raise FormatError(

@@ -167,3 +167,29 @@ def test_learned_pipeline_flow_equals_the_flow_command_with_context(sim, tmp_pat
 def test_bad_flow_context_is_a_config_error(bad):
     with pytest.raises(ConfigError, match="flow_context_us"):
         PipelineConfig(flow_context_us=bad)
+
+
+def _final_bar(err: str) -> str:
+    return [line for line in err.replace("\r", "\n").splitlines() if "s of recording" in line][-1]
+
+
+def test_progress_bar_counts_seconds_of_recording(sim, tmp_path, capsys):
+    rec, d = sim
+    t = rec.stream.events["t"]
+    assert main(["segment", str(d / "sim.npz"), "--flow", str(d / "flow.npz"), "--out",
+                 str(tmp_path / "r.npz")]) == 0
+    last = _final_bar(capsys.readouterr().err)
+    # the npz tells its time span, so the bar has a total: the recording's duration in s
+    assert "100%" in last and f"{(t[-1] - t[0]) / 1e6:.2f}/{(t[-1] - t[0]) / 1e6:.2f} s of recording" in last
+    assert "x real time, 4 windows" in last
+
+
+def test_progress_bar_without_a_known_duration(sim, tmp_path, capsys):
+    from evseg.io import write_text
+
+    rec, d = sim
+    write_text(rec.stream, tmp_path / "sim.txt")  # text files do not tell their span up front
+    assert main(["segment", str(tmp_path / "sim.txt"), "--sensor-size", "346x260", "--flow", str(d / "flow.npz"),
+                 "--out", str(tmp_path / "r.npz")]) == 0
+    last = _final_bar(capsys.readouterr().err)
+    assert "%" not in last and "0.04 s of recording" in last and "4 windows" in last

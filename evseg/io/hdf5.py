@@ -88,6 +88,18 @@ class H5Source:
             except (CalibrationError, OSError, ValueError) as exc:
                 raise FormatError(f"{where}: datasets 'K'/'D': {exc}") from None
 
+    def time_span_us(self) -> tuple[int, int] | None:
+        """Times (us) of the first and last events, read from the ends of ``events/t``; None
+        when empty or unreadable (the chunks then report the problem)."""
+        if self._n == 0:
+            return None
+        try:
+            ends = [columns_to_events(*(self._ds[k][i:i + 1] for k in "txyp"), "", i)["t"][0]
+                    for i in (0, self._n - 1)]
+        except (FormatError, OSError, ValueError, KeyError):
+            return None
+        return int(ends[0]), int(ends[1])
+
     def chunks(self, chunk_events: int) -> Iterator[Chunk]:
         for i in range(0, self._n, chunk_events):
             j = min(self._n, i + chunk_events)

@@ -134,6 +134,17 @@ class ArraySource:
         except CalibrationError as exc:
             raise FormatError(f"{self.path}: {self.format}: keys 'K'/'D': {exc}") from None
 
+    def time_span_us(self) -> tuple[int, int] | None:
+        """Times (us) of the first and last rows, O(1); None when empty or unreadable (the
+        chunks then report the problem)."""
+        if self._n == 0:
+            return None
+        try:
+            ends = [columns_to_events(*self._get(i, i + 1), "", first_index=i)["t"][0] for i in (0, self._n - 1)]
+        except FormatError:
+            return None
+        return int(ends[0]), int(ends[1])
+
     def chunks(self, chunk_events: int) -> Iterator[Chunk]:
         where = f"{self.path}: {self.format}"
         for start in range(0, self._n, chunk_events):

@@ -63,6 +63,10 @@ class Source(Protocol):
 
     def close(self) -> None: ...
 
+    # Optional: ``time_span_us() -> (first t, last t) | None``, the times (us, chunk time) of the
+    # file's first and last events when the format can read them without decoding the file
+    # (arrays, HDF5). Used for progress bars only; sources that cannot tell leave it out.
+
 
 class Recording:
     """A recording file opened for streaming; use as a context manager.
@@ -117,6 +121,14 @@ class Recording:
             f"Recording({str(self.path)!r}, format={self.format!r}, sensor_size={self.sensor_size}, "
             f"t_offset_us={self.t_offset_us})"
         )
+
+    def time_span_us(self) -> tuple[int, int] | None:
+        """``(first, last)`` event time (us, chunk time) when the format can read its two ends
+        without decoding the file (arrays, HDF5), else None. For progress bars: the ends are
+        not validated (a broken file still fails in :meth:`chunks`), and with ``sort=True`` of
+        an unsorted file they need not be the earliest and latest times."""
+        span = getattr(self._source, "time_span_us", None)
+        return span() if span is not None else None
 
     def _where(self, chunk: Chunk, i: int, global_index: int) -> str:
         pos = f"event {global_index}"

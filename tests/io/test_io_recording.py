@@ -77,3 +77,30 @@ def test_reader_never_mutates_or_aliases_a_source_array(tmp_path):
     s = read_events(tmp_path / "s.npy")
     s.events["x"][:] = 0  # the result is ours to change
     np.testing.assert_array_equal(np.load(tmp_path / "s.npy"), ev)
+
+
+def test_time_span_from_the_file_ends(tmp_path):
+    """Arrays and HDF5 tell their first and last event times up front (progress bars); the
+    value is the chunks' own time base, whatever unit the file stores."""
+    import scipy.io
+
+    from evseg.io import write_h5, write_text
+
+    ev = sample_events(40, t0=1_000)
+    first, last = int(ev["t"][0]), int(ev["t"][-1])
+    stream = EventStream(ev, (64, 48))
+    np.savez(tmp_path / "sec.npz", t=ev["t"] / 1e6, x=ev["x"], y=ev["y"], p=ev["p"])  # float seconds
+    np.save(tmp_path / "e.npy", ev)
+    scipy.io.savemat(tmp_path / "e.mat", {"events": np.column_stack(
+        [ev["x"], ev["y"], np.where(ev["p"] > 0, 1, -1), ev["t"]]).astype(np.int32)})
+    paths = [write_npz(stream, tmp_path / "e.npz"), write_h5(stream, tmp_path / "e.h5"),
+             tmp_path / "sec.npz", tmp_path / "e.npy", tmp_path / "e.mat"]
+    for p in paths:
+        with open_recording(p, sensor_size=(64, 48)) as rec:
+            assert rec.time_span_us() == (first, last), p.name
+            assert int(next(iter(rec.chunks()))["t"][0]) == first
+    # formats that would have to decode the file to know do not tell
+    with open_recording(write_text(stream, tmp_path / "e.txt"), sensor_size=(64, 48)) as rec:
+        assert rec.time_span_us() is None
+    with open_recording(_npz(tmp_path, ev[:0])) as rec:
+        assert rec.time_span_us() is None
