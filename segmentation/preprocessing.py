@@ -22,6 +22,11 @@ construction of a spatial graph via Delaunay triangulation". Here:
   0.934, clean flow unchanged (0.959 / 0.957). Not kept: the cell's
   medoid (minimum summed distance), which prefers the tighter cluster of a mixed cell - the
   slow background's flows at a fast object's border - and lost small fast objects.
+* Node budget (``max_nodes``, off by default): when a window's flows occupy more cells than
+  that, the cell grows to ``cell_px`` x 1.25^k for the smallest such k (:func:`node_cell_px`),
+  so a 1280x720 window of 220 k events can get ~10 k nodes instead of ~50 k and the work per
+  window stays bounded on large sensors (the solver scales the label cost alike; small objects
+  then have fewer nodes, see ``SegmentationConfig.max_nodes``).
 * Nodes whose positions coincide exactly (possible only with ``cell_px = 0``) are merged by
   the same rule, so the triangulation never sees duplicates.
 * Graph: edges of the 2D Delaunay triangulation of node positions, as an (E, 2) int64 array,
@@ -60,6 +65,8 @@ class NodeGraph:
         confidence: (M,) float64 in (0, 1], data-term weight from the flow uncertainty.
         edges: (E, 2) int64 Delaunay edges, unique, i < j.
         edge_length: (E,) float64 length of each edge, px.
+        cell_px: side of the cells that kept one node each, px (``cell_px`` of the config, or
+            larger when the node budget made it grow).
     """
 
     index: np.ndarray
@@ -71,6 +78,7 @@ class NodeGraph:
     confidence: np.ndarray
     edges: np.ndarray
     edge_length: np.ndarray
+    cell_px: float = 0.0
 
     def __len__(self) -> int:
         return len(self.index)
@@ -115,29 +123,11 @@ def select_nodes(
     t = np.asarray(t, dtype=np.int64)
     nx = np.asarray(nx, dtype=np.float64)
     ny = np.asarray(ny, dtype=np.float64)
-    ok = np.isfinite(x) & np.isfinite(y) & np.isfinite(nx) & np.isfinite(ny)
-    ok &= np.hypot(nx, ny) >= max(min_flow_px_s, 1e-12)
-    unc = None
-    if uncertainty is not None:
-        unc = np.asarray(uncertainty, dtype=np.float64)
-        ok &= np.isfinite(unc)
-        if max_uncertainty is not None:
-            ok &= unc <= max_uncertainty
-    if node_window_us is not None and ok.any():
-        ok &= t >= t[ok].max() - int(node_window_us)
-    cand = np.flatnonzero(ok)
+    cand = candidate_flows(x, y, t, nx, ny, uncertainty, min_flow_px_s, max_uncertainty, node_window_us)
     if len(cand) == 0:
-        return cand.astype(np.int64)
-    if cell_px > 0:
-        cx = np.floor(x[cand] / cell_px).astype(np.int64)
-        cy = np.floor(y[cand] / cell_px).astype(np.int64)
-        # Exact coordinates as cell keys: with cell_px = 0 only exact duplicates merge.
-    else:
-        cx = np.unique(x[cand], return_inverse=True)[1].astype(np.int64)
-        cy = np.unique(y[cand], return_inverse=True)[1].astype(np.int64)
-    cx -= cx.min()
-    cy -= cy.min()
-    key = cx * (int(cy.max()) + 1) + cy
+        return cand
+    unc = None if uncertainty is None else np.asarray(uncertainty, dtype=np.float64)
+    key = _cell_keys(x[cand], y[cand], cell_px)
     # Sort so that within a cell the preferred flow comes LAST: lexsort's last key is primary.
     cert = -unc[cand] if unc is not None else np.zeros(len(cand))
     order = np.lexsort((cand, t[cand], cert, key))
@@ -150,6 +140,82 @@ def select_nodes(
     pick = confirmed_flows(starts, nx[cand[order]], ny[cand[order]], cert[order], CONFIRM_RUN,
                            CONFIRM_REL_TOL, CONFIRM_ABS_TOL_PX_S)
     return np.sort(cand[order[pick]])
+
+
+def candidate_flows(
+    x: np.ndarray,
+    y: np.ndarray,
+    t: np.ndarray,
+    nx: np.ndarray,
+    ny: np.ndarray,
+    uncertainty: np.ndarray | None,
+    min_flow_px_s: float = 1.0,
+    max_uncertainty: float | None = None,
+    node_window_us: int | None = None,
+) -> np.ndarray:
+    """Indices (sorted, int64) of the flows that may become nodes: finite, at least
+    ``min_flow_px_s`` fast, at most ``max_uncertainty`` uncertain and within the last
+    ``node_window_us`` (arguments as for :func:`select_nodes`)."""
+    x, y, nx, ny = (np.asarray(a, dtype=np.float64) for a in (x, y, nx, ny))
+    ok = np.isfinite(x) & np.isfinite(y) & np.isfinite(nx) & np.isfinite(ny)
+    ok &= np.hypot(nx, ny) >= max(min_flow_px_s, 1e-12)
+    if uncertainty is not None:
+        unc = np.asarray(uncertainty, dtype=np.float64)
+        ok &= np.isfinite(unc)
+        if max_uncertainty is not None:
+            ok &= unc <= max_uncertainty
+    if node_window_us is not None and ok.any():
+        t = np.asarray(t, dtype=np.int64)
+        ok &= t >= t[ok].max() - int(node_window_us)
+    return np.flatnonzero(ok).astype(np.int64)
+
+
+def _cell_keys(x: np.ndarray, y: np.ndarray, cell_px: float) -> np.ndarray:
+    """int64 cell key of each position (cells of ``cell_px``; 0: exact coordinates)."""
+    if cell_px > 0:
+        cx = np.floor(x / cell_px).astype(np.int64)
+        cy = np.floor(y / cell_px).astype(np.int64)
+    else:  # exact coordinates as cell keys: only exact duplicates merge
+        cx = np.unique(x, return_inverse=True)[1].astype(np.int64).ravel()
+        cy = np.unique(y, return_inverse=True)[1].astype(np.int64).ravel()
+    cx -= cx.min()
+    cy -= cy.min()
+    return cx * (int(cy.max()) + 1) + cy
+
+
+CELL_GROWTH = 1.25
+"""Step of the cell side when a window exceeds its node budget."""
+
+
+def node_cell_px(x: np.ndarray, y: np.ndarray, cell_px: float, max_nodes: int | None) -> float:
+    """Cell side (px) that keeps at most ``max_nodes`` nodes of flows at (x, y).
+
+    ``cell_px`` when its cells already hold at most ``max_nodes`` flows (or no budget, or
+    ``cell_px`` = 0), else ``cell_px * CELL_GROWTH**k`` for the smallest k that does. Growing
+    the side by g divides the occupied cells by at most g^2, so the search starts at the k
+    that this bound requires.
+
+    Example:
+        >>> x, y = np.meshgrid(np.arange(300.0), np.arange(200.0))  # a full 300 x 200 sensor
+        >>> node_cell_px(x.ravel(), y.ravel(), 3.0, 12_000)         # 100 x 67 = 6,700 cells
+        3.0
+        >>> c = node_cell_px(x.ravel(), y.ravel(), 3.0, 2_000)      # 3 x 1.25^2 gives 2,752 cells
+        >>> round(c, 4), len(np.unique(_cell_keys(x.ravel(), y.ravel(), c)))
+        (5.8594, 1768)
+    """
+    if max_nodes is None or cell_px <= 0 or len(x) <= max_nodes:
+        return float(cell_px)
+    x = np.asarray(x, dtype=np.float64)
+    y = np.asarray(y, dtype=np.float64)
+    count = len(np.unique(_cell_keys(x, y, cell_px)))
+    if count <= max_nodes:
+        return float(cell_px)
+    k = max(1, int(np.ceil(np.log(np.sqrt(count / max(max_nodes, 1))) / np.log(CELL_GROWTH))))
+    while True:
+        c = float(cell_px * CELL_GROWTH**k)
+        if len(np.unique(_cell_keys(x, y, c))) <= max_nodes:
+            return c
+        k += 1
 
 
 def delaunay_edges(x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -226,11 +292,17 @@ def build_node_graph(
     node_window_us: int | None = None,
     uncertainty_scale: float = 0.3,
     cell_rule: str = "confirmed",
+    max_nodes: int | None = None,
 ) -> NodeGraph:
     """Downsample the flows to nodes (:func:`select_nodes`) and triangulate them.
 
-    All arrays are (N,); see :class:`NodeGraph` for the result's units. Inputs are not modified.
+    All arrays are (N,); see :class:`NodeGraph` for the result's units. ``max_nodes``: node
+    budget (:func:`node_cell_px`; None = no limit). Inputs are not modified.
     """
+    if max_nodes is not None:
+        cand = candidate_flows(x, y, t, nx, ny, uncertainty, min_flow_px_s, max_uncertainty, node_window_us)
+        cell_px = node_cell_px(np.asarray(x, dtype=np.float64)[cand], np.asarray(y, dtype=np.float64)[cand],
+                               cell_px, max_nodes)
     idx = select_nodes(x, y, t, nx, ny, uncertainty, cell_px, min_flow_px_s, max_uncertainty,
                        node_window_us, cell_rule)
     xs = np.asarray(x, dtype=np.float64)[idx]
@@ -248,4 +320,5 @@ def build_node_graph(
         confidence=node_confidence(unc, uncertainty_scale, len(idx)),
         edges=edges,
         edge_length=length,
+        cell_px=float(cell_px),
     )

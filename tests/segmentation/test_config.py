@@ -42,3 +42,17 @@ def test_wrong_types_and_values(tmp_path):
         SegmentationConfig(tracked_label_cost=-0.5)
     with pytest.raises(ConfigError, match="unknown segmentation preset"):
         load_segmentation_config("nope")
+
+
+def test_node_budget_values(tmp_path):
+    p = tmp_path / "c.yaml"
+    p.write_text("max_nodes: 12000\n")
+    assert load_segmentation_config(p).max_nodes == 12_000
+    p.write_text("max_nodes: null\n")
+    assert load_segmentation_config(p).max_nodes is None
+    for bad in ("0", "-5", "2.5", "many", "true"):
+        p.write_text(f"max_nodes: {bad}\n")
+        with pytest.raises(ConfigError, match="max_nodes"):
+            load_segmentation_config(p)
+    with pytest.raises(ConfigError, match="max_nodes"):
+        SegmentationConfig(max_nodes=0)

@@ -152,3 +152,44 @@ def test_confirmed_rule_keeps_few_outliers_as_nodes():
              for rule in ("preferred", "confirmed")}
     assert 0.25 < share["preferred"] < 0.35
     assert share["confirmed"] < 0.08
+
+
+def _occupied(x, y, cell):
+    return len(set(zip(np.floor(x / cell).astype(int).tolist(), np.floor(y / cell).astype(int).tolist())))
+
+
+def test_node_budget_grows_the_cell_to_the_smallest_sufficient_step():
+    from evseg.segmentation.preprocessing import CELL_GROWTH, node_cell_px
+
+    rng = np.random.default_rng(3)
+    x, y = rng.uniform(0, 400, 20_000), rng.uniform(0, 300, 20_000)
+    full = _occupied(x, y, 3.0)
+    assert full > 10_000
+    # no budget, a budget the window fits, cell 0: unchanged
+    assert node_cell_px(x, y, 3.0, None) == 3.0
+    assert node_cell_px(x, y, 3.0, full) == 3.0
+    assert node_cell_px(x, y, 0.0, 10) == 0.0
+    for budget in (8_000, 3_000, 500):
+        c = node_cell_px(x, y, 3.0, budget)
+        k = round(np.log(c / 3.0) / np.log(CELL_GROWTH))
+        assert k >= 1 and c == pytest.approx(3.0 * CELL_GROWTH**k)
+        assert _occupied(x, y, c) <= budget < _occupied(x, y, c / CELL_GROWTH)
+
+
+def test_build_node_graph_keeps_the_budget_and_reports_its_cell():
+    from evseg.segmentation.preprocessing import node_cell_px
+
+    rng = np.random.default_rng(4)
+    n = 30_000
+    x, y = rng.uniform(0, 640, n), rng.uniform(0, 480, n)
+    t, nx, ny = np.arange(n), rng.normal(50, 5, n), rng.normal(0, 5, n)
+    free = build_node_graph(x, y, t, nx, ny, cell_px=3.0)
+    assert free.cell_px == 3.0 and len(free) > 15_000
+    g = build_node_graph(x, y, t, nx, ny, cell_px=3.0, max_nodes=5_000)
+    assert len(g) <= 5_000 and g.cell_px == node_cell_px(x, y, 3.0, 5_000) > 3.0
+    # the nodes are exactly those of the grown cell
+    np.testing.assert_array_equal(g.index, select_nodes(x, y, t, nx, ny, None, g.cell_px))
+    # a budget the window fits changes nothing
+    same = build_node_graph(x, y, t, nx, ny, cell_px=3.0, max_nodes=len(free))
+    np.testing.assert_array_equal(same.index, free.index)
+    np.testing.assert_array_equal(same.edges, free.edges)

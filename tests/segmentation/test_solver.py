@@ -254,3 +254,24 @@ def test_residual_scale_follows_the_flow_noise():
     assert exact.sigma_px_s == pytest.approx(max(2.0, rel), rel=0.05)
     # 20 px/s of noise: ring noise ~14-16 px/s (biased low, see ring_noise), x 1.5.
     assert 15.0 < noisy.sigma_px_s < 32.0
+
+
+def test_node_budget_on_a_large_sensor_keeps_the_objects():
+    """A 1280x720 window of 60 k exact flows: with a budget of 6,000 nodes the cell grows,
+    the propagation limit grows alike, and both objects are still found."""
+    from evseg.segmentation import SegmentationConfig, segment_normal_flow
+    from evseg.segmentation.synthetic import synthetic_scene
+
+    sc = synthetic_scene(n_flows=60_000, n_objects=2, sensor_size=(1280, 720), seed=5,
+                         radius_px=(120.0, 160.0))
+    cfg = SegmentationConfig(max_nodes=6_000)
+    res = segment_normal_flow(sc.x, sc.y, sc.t, sc.nx, sc.ny, config=cfg, sensor_size=sc.sensor_size)
+    assert len(res.node_labels) <= 6_000
+    assert res.max_propagation_px > cfg.max_propagation_px
+    assert res.n_objects == 2
+    # each true object is mostly one detected object
+    lab = res.node_labels
+    truth = sc.label[res.node_index]
+    for k in (1, 2):
+        vals, counts = np.unique(lab[truth == k], return_counts=True)
+        assert vals[np.argmax(counts)] >= 1 and counts.max() >= 0.9 * (truth == k).sum()
