@@ -34,6 +34,7 @@ class SegmentJob:
     flow_method: str = "learned"
     model: Path | None = None
     threads: int | None = None
+    overlap: bool = True
     masks: bool = False
     video: Path | None = None
     frames: Path | None = None
@@ -57,6 +58,7 @@ def build_pipeline_config(job: SegmentJob):
         flow="precomputed" if job.flow_file is not None else job.flow_method,
         model_path=None if job.model is None else str(job.model),
         threads=job.threads,
+        overlap=job.overlap,
         segmentation=seg,
     )
 

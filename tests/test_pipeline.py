@@ -193,3 +193,85 @@ def test_progress_bar_without_a_known_duration(sim, tmp_path, capsys):
                  "--out", str(tmp_path / "r.npz")]) == 0
     last = _final_bar(capsys.readouterr().err)
     assert "%" not in last and "0.04 s of recording" in last and "4 windows" in last
+
+
+@pytest.fixture(scope="module")
+def short_stream():
+    from evseg.simulator import load_scene_preset, simulate
+
+    return simulate(load_scene_preset("eed_like"), seed=1002, duration_us=50_000).stream
+
+
+@pytest.mark.parametrize("flow", ["learned", "planefit"])
+def test_overlapped_flow_gives_the_sequential_results(short_stream, flow):
+    runs = {}
+    for overlap in (False, True):
+        pipe = MotionSegmentationPipeline(PipelineConfig(flow=flow, overlap=overlap, threads=1),
+                                          sensor_size=short_stream.sensor_size)
+        runs[overlap] = list(pipe.run(short_stream))
+    assert len(runs[True]) == len(runs[False]) == 5
+    for a, b in zip(runs[False], runs[True]):
+        np.testing.assert_array_equal(a.labels, b.labels)
+        np.testing.assert_array_equal(a.flow, b.flow)
+        assert a.boxes == b.boxes and a.t0_us == b.t0_us
+        assert b.timings_ms["flow"] > 0
+
+
+def _failing_chunks(events, n_ok):
+    yield events[:n_ok]
+    raise OSError("disk gone")
+
+
+@pytest.mark.parametrize("overlap", [False, True])
+def test_a_read_error_surfaces_after_the_windows_read_before_it(short_stream, overlap):
+    ev = short_stream.events
+    n_ok = int(np.searchsorted(ev["t"], ev["t"][0] + 25_000))  # windows 0, 1 complete, 2 partial
+    pipe = MotionSegmentationPipeline(PipelineConfig(flow="planefit", overlap=overlap),
+                                      sensor_size=short_stream.sensor_size)
+    done = []
+    with pytest.raises(OSError, match="disk gone"):
+        for res in pipe.run(_failing_chunks(ev, n_ok)):
+            done.append(res.index)
+    assert done == [0, 1]
+
+
+@pytest.mark.parametrize("overlap", [False, True])
+def test_a_flow_error_surfaces_at_its_window(short_stream, overlap, monkeypatch):
+    pipe = MotionSegmentationPipeline(PipelineConfig(flow="planefit", overlap=overlap),
+                                      sensor_size=short_stream.sensor_size)
+    calls = []
+    inner = pipe._flow_fn
+
+    def flaky(events, sensor_size, context):
+        calls.append(len(calls))
+        if len(calls) == 3:
+            raise RuntimeError("estimator failed on window 2")
+        return inner(events, sensor_size, context)
+
+    monkeypatch.setattr(pipe, "_flow_fn", flaky)
+    done = []
+    with pytest.raises(RuntimeError, match="window 2"):
+        for res in pipe.run(short_stream):
+            done.append(res.index)
+    assert done == [0, 1]
+    # the pipeline is usable again after the failure, and an abandoned run leaves nothing behind
+    monkeypatch.setattr(pipe, "_flow_fn", inner)
+    pipe.reset()
+    first = next(iter(pipe.run(short_stream)))
+    assert first.index == 0 and len(list(pipe.run(short_stream))) == 5
+
+
+def test_a_callers_flow_fn_runs_on_the_callers_thread(short_stream):
+    import threading
+
+    seen = set()
+
+    def my_flow(events, sensor_size):
+        from evseg.veckm_flow import PlaneFitNormalFlow, select_targets
+
+        seen.add(threading.current_thread().name)
+        return PlaneFitNormalFlow()(events, sensor_size, select_targets(events, sensor_size, cell_px=2))
+
+    pipe = MotionSegmentationPipeline(PipelineConfig(), sensor_size=short_stream.sensor_size, flow_fn=my_flow)
+    assert len(list(pipe.run(short_stream))) == 5
+    assert seen == {threading.current_thread().name}

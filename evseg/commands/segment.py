@@ -35,7 +35,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--flow-method", choices=["learned", "planefit"], default="learned",
                    help="normal-flow estimator when --flow is not given")
     p.add_argument("--model", type=Path, default=None, help="ONNX normal-flow model (default: shipped)")
-    p.add_argument("--threads", type=int, default=None, help="onnxruntime threads")
+    p.add_argument("--threads", type=int, default=None,
+                   help="threads of the normal-flow estimator (default: 1 while it overlaps the segmentation, else all cores)")
+    p.add_argument("--no-overlap", action="store_true",
+                   help="estimate each window's normal flow in turn instead of during the previous window's segmentation")
     p.add_argument("--masks", action="store_true", help="also store dense object masks in the result")
     p.add_argument("--video", type=Path, default=None, help="write an overlay video (.mp4)")
     p.add_argument("--frames", type=Path, default=None, help="write one overlay PNG per window here")
@@ -61,6 +64,7 @@ def run(args: argparse.Namespace) -> int:
         flow_method=args.flow_method,
         model=args.model,
         threads=args.threads,
+        overlap=not args.no_overlap,
         masks=args.masks,
         video=args.video,
         frames=args.frames,
