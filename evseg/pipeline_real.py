@@ -155,9 +155,10 @@ def ball_object(boxes: dict[int, tuple[int, int, int, int]], point: tuple[float,
 
 
 def segment_real_recording(
-    path: Path, preset: str | None, max_windows: int | None = None
+    path: Path, preset: str | None, max_windows: int | None = None, flow: str = "learned"
 ) -> tuple[list, list[float]]:
-    """Run the pipeline (shipped model, 10 ms windows) over ``path``.
+    """Run the pipeline (10 ms windows; ``flow``: 'learned' = the shipped model, or
+    'planefit') over ``path``.
 
     Returns the window results (masks, events and raw segmentation dropped to save memory)
     and the wall time of each window (s, flow included). ``max_windows`` stops early."""
@@ -169,7 +170,7 @@ def segment_real_recording(
 
     stream = read_events(path)
     seg = load_segmentation_config(preset) if preset else SegmentationConfig()
-    pipe = MotionSegmentationPipeline(PipelineConfig(segmentation=seg), sensor_size=stream.sensor_size)
+    pipe = MotionSegmentationPipeline(PipelineConfig(flow=flow, segmentation=seg), sensor_size=stream.sensor_size)
     results, times = [], []
     it = pipe.run(stream)
     while max_windows is None or len(results) < max_windows:
@@ -209,10 +210,11 @@ def summarize_real(results: list, times: list[float], expect: str, track: np.nda
     return row
 
 
-def evaluate_pipeline_real(quick: bool = False) -> list[dict]:
+def evaluate_pipeline_real(quick: bool = False, flow: str = "learned") -> list[dict]:
     """``evseg eval pipeline-real``: one row per shared real recording (module docstring).
 
-    Quick: the recordings marked ``quick``, at most 10 windows each.
+    Quick: the recordings marked ``quick``, at most 10 windows each. ``flow``: the normal-flow
+    estimator, 'learned' (the command's) or 'planefit' (from Python, for comparison).
     """
     from evseg.errors import EvsegError
     from evseg.train.evaluate import shared_data_dir
@@ -227,7 +229,7 @@ def evaluate_pipeline_real(quick: bool = False) -> list[dict]:
         path = root / rec.path
         if not path.is_file() or (quick and not rec.quick):
             continue
-        results, times = segment_real_recording(path, rec.preset, max_windows=10 if quick else None)
+        results, times = segment_real_recording(path, rec.preset, max_windows=10 if quick else None, flow=flow)
         rows.append({"recording": rec.path, "preset": rec.preset or "default", "expected": _EXPECT.get(rec.expect, rec.expect),
                      **summarize_real(results, times, rec.expect, track)})
     one_motion = [r for r in rows if r["expected"] == _EXPECT["none"]]
