@@ -7,6 +7,7 @@ videos); the pipeline itself (:mod:`evseg.pipeline`) only returns values.
 from __future__ import annotations
 
 import contextlib
+import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -138,6 +139,8 @@ def run_segment_job(job: SegmentJob) -> str:
         pipe = MotionSegmentationPipeline(cfg, sensor_size=rec.sensor_size, calibration=calibration)
         stride_us = cfg.stride_us or cfg.window_us
         n_windows = n_objects = 0
+        t_wall = time.perf_counter()
+        t_first = t_last = None  # recording time covered by the windows (us)
         ids: set[int] = set()
         writer = ResultWriter(job.out, None, rec.sensor_size, config_yaml(cfg), with_masks=job.masks)
         span = rec.time_span_us()
@@ -166,6 +169,8 @@ def run_segment_job(job: SegmentJob) -> str:
                     sink.add(label_overlay(res.events, res.labels, res.boxes, rec.sensor_size,
                                            title=f"{res.t0_us / 1e3:.1f} ms"))
                 n_windows += 1
+                t_first = res.t0_us if t_first is None else t_first
+                t_last = res.t1_us
                 n_objects += len(res.boxes)
                 ids.update(res.boxes)
                 if origin is None:
@@ -177,8 +182,12 @@ def run_segment_job(job: SegmentJob) -> str:
                     f"{job.flow_file}: key 'index' refers to event {int(flow['index'][-1])} but "
                     f"{job.recording} has {writer.n_written} events (flow of another recording?)"
                 )
+    wall = time.perf_counter() - t_wall
+    speed = ""
+    if t_first is not None and wall > 0:
+        speed = f" in {wall:.1f} s ({(t_last - t_first) / 1e6 / wall:.2f}x real time)"
     return (
-        f"wrote {job.out}: {writer.n_written} events, {n_windows} windows, "
+        f"wrote {job.out}: {writer.n_written} events, {n_windows} windows{speed}, "
         f"{len(ids)} distinct objects, {n_objects / max(n_windows, 1):.2f} objects per window"
         + (f"; video {job.video}" if job.video else "")
     )

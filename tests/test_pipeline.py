@@ -1,5 +1,7 @@
 """The streaming pipeline and the `evseg segment` job, on a short simulated recording."""
 
+import re
+
 import numpy as np
 import pytest
 
@@ -178,10 +180,13 @@ def test_progress_bar_counts_seconds_of_recording(sim, tmp_path, capsys):
     t = rec.stream.events["t"]
     assert main(["segment", str(d / "sim.npz"), "--flow", str(d / "flow.npz"), "--out",
                  str(tmp_path / "r.npz")]) == 0
-    last = _final_bar(capsys.readouterr().err)
+    captured = capsys.readouterr()
+    last = _final_bar(captured.err)
     # the npz tells its time span, so the bar has a total: the recording's duration in s
     assert "100%" in last and f"{(t[-1] - t[0]) / 1e6:.2f}/{(t[-1] - t[0]) / 1e6:.2f} s of recording" in last
     assert "x real time, 4 windows" in last
+    # the summary names the wall time and the real-time factor over the windows' 40 ms
+    assert re.search(r"4 windows in \d+\.\d s \(\d+\.\d\dx real time\)", captured.out)
 
 
 def test_progress_bar_without_a_known_duration(sim, tmp_path, capsys):
