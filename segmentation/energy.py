@@ -9,14 +9,16 @@
 * Potts: w_ij = lambda_p * (edge weight) for every graph edge whose ends differ.
 * Label cost (Delong et al. 2012): h_l = lambda_m for every label used by at least one node.
 
-Everything is numpy; :func:`energy` is the exact value used to accept or reject moves.
+Everything is numpy (the data-cost matrix one compiled pass, :mod:`._kernels`); :func:`energy`
+is the exact value used to accept or reject moves.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from evseg.segmentation.motion_model import normal_flow_residuals
+from evseg.segmentation._kernels import data_cost_matrix
+from evseg.segmentation.motion_model import linear_parameters
 
 
 def data_costs(
@@ -39,13 +41,13 @@ def data_costs(
             (a flow known to be less accurate tolerates a larger residual, but an outlier
             still costs tau^2).
     """
-    r = normal_flow_residuals(models, x, y, nx, ny) / sigma_px_s
-    if node_scale is not None:
-        r /= np.asarray(node_scale, dtype=np.float64)[:, None]
-    d = np.minimum(r * r, truncation * truncation)
-    if confidence is not None:
-        d *= np.asarray(confidence, dtype=np.float64)[:, None]
-    return d
+    f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
+    m = len(np.asarray(x))
+    ones = np.ones(m)
+    return data_cost_matrix(
+        linear_parameters(np.asarray(models, dtype=np.float64).reshape(-1, 4)), f64(x), f64(y), f64(nx), f64(ny),
+        float(sigma_px_s), ones if node_scale is None else f64(node_scale),
+        ones if confidence is None else f64(confidence), float(truncation) * float(truncation))
 
 
 def potts_weights(edge_length: np.ndarray, lambda_p: float, weighting: str, edge_scale_px: float) -> np.ndarray:
