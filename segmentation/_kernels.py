@@ -1,6 +1,6 @@
 """Compiled (numba) loops of the segmentation: the robust 1-ring translations, the nearest
 node of a point, the unique edges of a triangulation, the terms of an expansion move, the
-data-cost matrix.
+data-cost matrix, the connected parts of each label.
 
 In numpy each IRLS iteration of :func:`evseg.segmentation.initialization.local_translations`
 costs five ``bincount`` passes plus temporaries (~1 ms at 1.5 k nodes for four iterations, most
@@ -277,3 +277,43 @@ def data_cost_matrix(q, x, y, nx, ny, sigma, node_scale, confidence, tau2):  # p
                 d = tau2
             out[k, j] = d * confidence[k]
     return out
+
+
+@njit(cache=True)
+def same_label_components(labels, edges):  # pragma: no cover
+    """Connected components of the graph restricted to edges whose two ends share a label.
+
+    Returns (M,) int64 component ids numbered in the order of each component's first node
+    (the numbering of ``scipy.sparse.csgraph.connected_components``). Union-find with path
+    halving, one pass over the edges.
+    """
+    m = labels.shape[0]
+    parent = np.arange(m)
+    for e in range(edges.shape[0]):
+        i = edges[e, 0]
+        j = edges[e, 1]
+        if labels[i] != labels[j]:
+            continue
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        while parent[j] != j:
+            parent[j] = parent[parent[j]]
+            j = parent[j]
+        if i != j:
+            if i < j:
+                parent[j] = i
+            else:
+                parent[i] = j
+    comp = np.empty(m, np.int64)
+    root_id = np.full(m, -1, np.int64)
+    n = 0
+    for k in range(m):
+        r = k
+        while parent[r] != r:
+            r = parent[r]
+        if root_id[r] < 0:
+            root_id[r] = n
+            n += 1
+        comp[k] = root_id[r]
+    return comp

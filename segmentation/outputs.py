@@ -20,6 +20,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from evseg.segmentation._kernels import same_label_components
+
 
 def background_layers(
     labels: np.ndarray,
@@ -88,17 +90,11 @@ def split_objects(
         (labels, models, regions): new labels 1..K' by decreasing part size, (K'+1, 4) models,
         and {k: node indices of object k's region}.
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
     labels = np.asarray(labels, dtype=np.int64)
     m = len(labels)
     if len(models) <= 1 or m == 0:
         return labels.copy(), np.asarray(models).reshape(-1, 4).copy(), {}
-    same = labels[edges[:, 0]] == labels[edges[:, 1]] if len(edges) else np.zeros(0, dtype=bool)
-    e = edges[same]
-    adj = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(m, m))
-    _, comp = connected_components(adj, directed=False)
+    comp = same_label_components(labels, np.ascontiguousarray(np.asarray(edges, dtype=np.int64).reshape(-1, 2)))
     if gap_px > 0 and x is not None:
         comp = _join_near_components(comp, labels, np.asarray(x, dtype=np.float64),
                                      np.asarray(y, dtype=np.float64), gap_px)

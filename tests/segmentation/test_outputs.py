@@ -33,3 +33,22 @@ def test_nearest_node_labels_empty_inputs():
                                np.array([1.0]), np.array([1.0]), 5.0).tolist() == [-1]
     assert nearest_node_labels(np.array([1.0]), np.array([1.0]), np.array([3]),
                                np.array([]), np.array([]), 5.0).shape == (0,)
+
+
+def test_same_label_components_match_scipy_numbering():
+    """The compiled union-find gives scipy's components and numbering (by first node), which
+    the order of equal-sized objects depends on."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    from evseg.segmentation._kernels import same_label_components
+
+    rng = np.random.default_rng(1)
+    for _ in range(200):
+        m = int(rng.integers(1, 300))
+        e = rng.integers(0, m, (int(rng.integers(0, 3 * m)), 2))
+        e = np.ascontiguousarray(e[e[:, 0] != e[:, 1]].reshape(-1, 2).astype(np.int64))
+        lab = rng.integers(-1, 4, m)
+        keep = e[lab[e[:, 0]] == lab[e[:, 1]]]
+        adj = coo_matrix((np.ones(len(keep)), (keep[:, 0], keep[:, 1])), shape=(m, m))
+        np.testing.assert_array_equal(same_label_components(lab, e), connected_components(adj, directed=False)[1])
