@@ -89,9 +89,8 @@ def _closing(writer, windows_done):
 
 def _progress_bar_kwargs(span: tuple[int, int] | None) -> dict:
     """tqdm settings: progress in seconds of recording, out of its duration when the format
-    tells it (the rate is then the real-time factor, recording s per wall s)."""
-    # tqdm's own rate would print "5.0s/s" (wall s per recording s) below 1x; the postfix
-    # states the real-time factor instead.
+    tells it; the postfix (:func:`_advance`) gives the real-time factor and the windows done."""
+    # tqdm's own rate would print "5.0s/s" (wall s per recording s) below 1x, hence no rate_fmt.
     kw = dict(desc="segment", unit="s", postfix="0 windows")
     if span is None or span[1] <= span[0]:
         return {**kw, "bar_format": "{desc}: {n:.2f} s of recording [{elapsed}{postfix}]"}
