@@ -247,3 +247,55 @@ def evaluate_pipeline_real(quick: bool = False, flow: str = "learned") -> list[d
 
 
 _EXPECT = {"none": "no object (one motion)", "ball": "the ball, nothing else"}
+
+
+PICTURES = {
+    "eed_what_is_background/EED_what_is_background_events.es": ("eed_real_learned.png", "eed_like"),
+    "dvxplorer_person_aedat4/sample.aedat4": ("real_dvxplorer_person.png", None),
+    "prophesee_sparks/evt2.raw": ("real_prophesee_sparks.png", None),
+    "prophesee_evt_samples/evt2_sample.raw": ("real_prophesee_spinner.png", None),
+}
+"""Recording -> (picture file, segmentation preset) that :func:`save_real_strips` writes."""
+
+
+def save_real_strips(out_dir: str | Path, panel_px: int = 400) -> list[Path]:
+    """Write one strip of four windows per recording of :data:`PICTURES` that is present: the
+    events of 4 evenly spaced 10 ms windows coloured by label (grey background, boxes with
+    object ids; :func:`evseg.overlay.label_overlay`), each panel ``panel_px`` wide. Returns the
+    paths written. The README's pictures come from ``save_real_strips('docs')``."""
+    import cv2
+
+    from evseg.io import read_events
+    from evseg.overlay import label_overlay
+    from evseg.pipeline import MotionSegmentationPipeline, PipelineConfig
+    from evseg.segmentation import SegmentationConfig, load_segmentation_config
+    from evseg.train.evaluate import shared_data_dir
+    from evseg.visualize import hstack_padded
+
+    root = shared_data_dir()
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written = []
+    for rel, (name, preset) in PICTURES.items():
+        path = root / rel
+        if not path.is_file():
+            continue
+        stream = read_events(path)
+        seg = load_segmentation_config(preset) if preset else SegmentationConfig()
+        pipe = MotionSegmentationPipeline(PipelineConfig(segmentation=seg), sensor_size=stream.sensor_size)
+        results = list(pipe.run(stream))
+        picks = np.unique(np.round(np.linspace(0, len(results) - 1, 6)[1:5]).astype(int))
+        width = stream.sensor_size[0]
+        panels = []
+        for k in picks:
+            r = results[k]
+            img = label_overlay(r.events, r.labels, r.boxes, stream.sensor_size, scale=max(1, panel_px // width),
+                                title=f"{r.t0_us / 1e3:.0f} ms")
+            if img.shape[1] > panel_px:
+                img = cv2.resize(img, (panel_px, round(img.shape[0] * panel_px / img.shape[1])),
+                                 interpolation=cv2.INTER_AREA)
+            panels.append(img)
+        target = out_dir / name
+        cv2.imwrite(str(target), hstack_padded(panels, gap=4))
+        written.append(target)
+    return written

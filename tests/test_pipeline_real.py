@@ -138,3 +138,15 @@ def test_cli_quick_run_writes_the_table(shared_data, tmp_path, capsys):
     # quick runs stop after 10 windows per recording
     rows = [line.split("|") for line in table.splitlines() if line.startswith("| ") and "/" in line.split("|")[1]]
     assert all(int(cells[4]) <= 10 for cells in rows)
+
+
+def test_strips_are_written(shared_data, tmp_path, monkeypatch):
+    import cv2
+
+    eed = "eed_what_is_background/EED_what_is_background_events.es"
+    if not (shared_data / eed).is_file():
+        pytest.skip("EED excerpt not available")
+    monkeypatch.setattr(pr, "PICTURES", {eed: ("eed.png", "eed_like")})
+    assert pr.save_real_strips(tmp_path, panel_px=380) == [tmp_path / "eed.png"]
+    img = cv2.imread(str(tmp_path / "eed.png"))
+    assert img.shape == (360, 4 * 380 + 3 * 4, 3)  # 190x180 sensor at scale 2, four panels, 4 px gaps
