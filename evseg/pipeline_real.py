@@ -21,9 +21,9 @@ something without ground truth:
 The other recordings (a person in front of a static camera, a spinning arm, sparks, a street
 seen from a car) are reported for the counts only. Every recording is segmented in raw sensor
 pixels (the ECD poster files carry a calibration; it is not applied), with the preset named in
-:data:`REAL_SEGMENTATION` (default settings unless the scene calls for one). The figures are a description, not a
-score: the alignment of EMSGC's frames is an estimate (+-3 ms) and EMSGC's output is another
-method's result, not ground truth.
+:data:`REAL_SEGMENTATION` (default settings unless the scene calls for one). The figures are a
+description, not a score: the alignment of EMSGC's frames is an estimate (+-3 ms) and EMSGC's
+output is another method's result, not ground truth.
 """
 
 from __future__ import annotations
@@ -165,14 +165,10 @@ def segment_real_recording(
     from dataclasses import replace
 
     from evseg.io import read_events
-    from evseg.pipeline import MotionSegmentationPipeline, PipelineConfig
-    from evseg.segmentation import SegmentationConfig, load_segmentation_config
 
     stream = read_events(path)
-    seg = load_segmentation_config(preset) if preset else SegmentationConfig()
-    pipe = MotionSegmentationPipeline(PipelineConfig(flow=flow, segmentation=seg), sensor_size=stream.sensor_size)
     results, times = [], []
-    it = pipe.run(stream)
+    it = _pipeline(stream.sensor_size, preset, flow).run(stream)
     while max_windows is None or len(results) < max_windows:
         t0 = time.perf_counter()
         res = next(it, None)
@@ -181,6 +177,16 @@ def segment_real_recording(
         times.append(time.perf_counter() - t0)
         results.append(replace(res, masks={}, events=res.events[:0], segmentation=None))
     return results, times
+
+
+def _pipeline(sensor_size: tuple[int, int], preset: str | None, flow: str = "learned"):
+    """The pipeline the evaluation and the pictures use: 10 ms windows, ``preset`` (None =
+    default settings), ``flow`` estimator."""
+    from evseg.pipeline import MotionSegmentationPipeline, PipelineConfig
+    from evseg.segmentation import SegmentationConfig, load_segmentation_config
+
+    seg = load_segmentation_config(preset) if preset else SegmentationConfig()
+    return MotionSegmentationPipeline(PipelineConfig(flow=flow, segmentation=seg), sensor_size=sensor_size)
 
 
 def summarize_real(results: list, times: list[float], expect: str, track: np.ndarray | None) -> dict:
@@ -224,15 +230,17 @@ def evaluate_pipeline_real(quick: bool = False, flow: str = "learned") -> list[d
         raise EvsegError(f"real recordings not found at {root} (set EVSEG_SHARED_DATA)")
     labels = root / "emsgc_reference/result_EED/what_is_background/seg_labels"
     track = emsgc_ball_track(labels) if labels.is_dir() else None
-    rows = []
+    rows, one_motion = [], []
     for rec in REAL_SEGMENTATION:
         path = root / rec.path
         if not path.is_file() or (quick and not rec.quick):
             continue
         results, times = segment_real_recording(path, rec.preset, max_windows=10 if quick else None, flow=flow)
-        rows.append({"recording": rec.path, "preset": rec.preset or "default", "expected": _EXPECT.get(rec.expect, rec.expect),
+        rows.append({"recording": rec.path, "preset": rec.preset or "default",
+                     "expected": _EXPECT.get(rec.expect, rec.expect),
                      **summarize_real(results, times, rec.expect, track)})
-    one_motion = [r for r in rows if r["expected"] == _EXPECT["none"]]
+        if rec.expect == "none":
+            one_motion.append(rows[-1])
     if one_motion:
         n = sum(r["windows"] for r in one_motion)
         rows.append({
@@ -267,8 +275,6 @@ def save_real_strips(out_dir: str | Path, panel_px: int = 400) -> list[Path]:
 
     from evseg.io import read_events
     from evseg.overlay import label_overlay
-    from evseg.pipeline import MotionSegmentationPipeline, PipelineConfig
-    from evseg.segmentation import SegmentationConfig, load_segmentation_config
     from evseg.train.evaluate import shared_data_dir
     from evseg.visualize import hstack_padded
 
@@ -281,9 +287,7 @@ def save_real_strips(out_dir: str | Path, panel_px: int = 400) -> list[Path]:
         if not path.is_file():
             continue
         stream = read_events(path)
-        seg = load_segmentation_config(preset) if preset else SegmentationConfig()
-        pipe = MotionSegmentationPipeline(PipelineConfig(segmentation=seg), sensor_size=stream.sensor_size)
-        results = list(pipe.run(stream))
+        results = list(_pipeline(stream.sensor_size, preset).run(stream))
         picks = np.unique(np.round(np.linspace(0, len(results) - 1, 6)[1:5]).astype(int))
         width = stream.sensor_size[0]
         panels = []
