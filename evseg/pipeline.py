@@ -300,12 +300,17 @@ class MotionSegmentationPipeline:
             fx, fy, nx, ny = undistort_normal_flow(self._undistortion, fx, fy, nx, ny)
         else:
             fx, fy = fx.astype(np.float64), fy.astype(np.float64)
+        if self._undistortion is not None:
+            ex, ey = self._undistortion.xu[ev["y"], ev["x"]], self._undistortion.yu[ev["y"], ev["x"]]
+        else:
+            ex, ey = ev["x"].astype(np.float64), ev["y"].astype(np.float64)
         timings["undistort"] = (time.perf_counter() - t0) * 1e3
 
+        # All the window's events give each node its support (flow covers only the targets).
         seg = segment_normal_flow(
             fx, fy, ft, nx, ny, uncertainty=unc, config=self.config.segmentation,
             sensor_size=self.sensor_size, previous=self._previous,
-            tracked_objects=self._tracked_objects(),
+            tracked_objects=self._tracked_objects(), event_xy=(ex, ey),
         )
         for k, v in getattr(seg, "timings", {}).items():
             timings[k] = v
@@ -313,10 +318,6 @@ class MotionSegmentationPipeline:
 
         t0 = time.perf_counter()
         mapping = self._tracker.update({int(k): tuple(v) for k, v in seg.boxes.items()})
-        if self._undistortion is not None:
-            ex, ey = self._undistortion.xu[ev["y"], ev["x"]], self._undistortion.yu[ev["y"], ev["x"]]
-        else:
-            ex, ey = ev["x"].astype(np.float64), ev["y"].astype(np.float64)
         seg_labels = propagate_labels(seg, ex, ey)  # -1 beyond segmentation.max_propagation_px
         # Per-window labels 1..K -> persistent object ids (0 and -1 unchanged).
         lut = np.arange(-1, seg.n_objects + 1, dtype=np.int64)

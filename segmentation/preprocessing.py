@@ -67,6 +67,8 @@ class NodeGraph:
         edge_length: (E,) float64 length of each edge, px.
         cell_px: side of the cells that kept one node each, px (``cell_px`` of the config, or
             larger when the node budget made it grow).
+        support: (M,) float64, number of events in each node's cell (:func:`cell_support`):
+            how much of the window one node stands for (None: not counted).
     """
 
     index: np.ndarray
@@ -79,6 +81,7 @@ class NodeGraph:
     edges: np.ndarray
     edge_length: np.ndarray
     cell_px: float = 0.0
+    support: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.index)
@@ -271,6 +274,39 @@ def _unique_pairs(e: np.ndarray, n: int) -> np.ndarray:
     return np.column_stack([key // n, key % n])
 
 
+def cell_support(
+    node_x: np.ndarray, node_y: np.ndarray, event_x: np.ndarray, event_y: np.ndarray, cell_px: float
+) -> np.ndarray:
+    """Number of events in the ``cell_px`` cell of each node, (M,) float64.
+
+    A node is the one flow its cell keeps (:func:`select_nodes`); the events of the cell are
+    the evidence it stands for: the edges of a small textured object fire ~20 events per 3 px
+    cell in 10 ms, a sparse background edge 2-3. Cells are :func:`select_nodes`' (floor of
+    position / ``cell_px``); ``cell_px`` 0 (no downsampling) gives every node a support of 1.
+
+    Example:
+        >>> import numpy as np
+        >>> cell_support(np.array([1.0, 7.0]), np.array([1.0, 1.0]),
+        ...              np.array([0.0, 1.0, 2.5, 7.5, 12.0]), np.zeros(5), 3.0).tolist()
+        [3.0, 1.0]
+    """
+    node_x = np.asarray(node_x, dtype=np.float64)
+    node_y = np.asarray(node_y, dtype=np.float64)
+    m = len(node_x)
+    if cell_px <= 0 or m == 0:
+        return np.ones(m)
+    ex = np.floor(np.asarray(event_x, dtype=np.float64) / cell_px).astype(np.int64)
+    ey = np.floor(np.asarray(event_y, dtype=np.float64) / cell_px).astype(np.int64)
+    cx = np.floor(node_x / cell_px).astype(np.int64)
+    cy = np.floor(node_y / cell_px).astype(np.int64)
+    x0, y0 = int(cx.min()), int(cy.min())
+    ncx, ncy = int(cx.max()) - x0 + 1, int(cy.max()) - y0 + 1
+    # Only events inside the nodes' bounding grid can share a node's cell.
+    inside = (ex >= x0) & (ex < x0 + ncx) & (ey >= y0) & (ey < y0 + ncy)
+    counts = np.bincount((ex[inside] - x0) * ncy + (ey[inside] - y0), minlength=ncx * ncy)
+    return counts[(cx - x0) * ncy + (cy - y0)].astype(np.float64)
+
+
 def node_confidence(uncertainty: np.ndarray | None, scale: float, n: int) -> np.ndarray:
     """Confidence c = 1 / (1 + (uncertainty / scale)^2) in (0, 1]; all ones without uncertainty."""
     if uncertainty is None:
@@ -293,14 +329,19 @@ def build_node_graph(
     uncertainty_scale: float = 0.3,
     cell_rule: str = "confirmed",
     max_nodes: int | None = None,
+    event_xy: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> NodeGraph:
     """Downsample the flows to nodes (:func:`select_nodes`) and triangulate them.
 
     All arrays are (N,); see :class:`NodeGraph` for the result's units. ``max_nodes``: node
-    budget (:func:`node_cell_px`; None = no limit). Inputs are not modified.
+    budget (:func:`node_cell_px`; None = no limit). ``event_xy``: positions (px) of all the
+    window's events, for each node's support (:func:`cell_support`); None counts the usable
+    flows instead (flow given for every event). Inputs are not modified.
     """
-    if max_nodes is not None:
+    cand = None
+    if max_nodes is not None or event_xy is None:
         cand = candidate_flows(x, y, t, nx, ny, uncertainty, min_flow_px_s, max_uncertainty, node_window_us)
+    if max_nodes is not None:
         cell_px = node_cell_px(np.asarray(x, dtype=np.float64)[cand], np.asarray(y, dtype=np.float64)[cand],
                                cell_px, max_nodes)
     idx = select_nodes(x, y, t, nx, ny, uncertainty, cell_px, min_flow_px_s, max_uncertainty,
@@ -310,6 +351,8 @@ def build_node_graph(
     edges = delaunay_edges(xs, ys)
     length = np.hypot(xs[edges[:, 0]] - xs[edges[:, 1]], ys[edges[:, 0]] - ys[edges[:, 1]])
     unc = None if uncertainty is None else np.asarray(uncertainty, dtype=np.float64)[idx]
+    if event_xy is None:
+        event_xy = (np.asarray(x, dtype=np.float64)[cand], np.asarray(y, dtype=np.float64)[cand])
     return NodeGraph(
         index=idx,
         x=xs,
@@ -321,4 +364,5 @@ def build_node_graph(
         edges=edges,
         edge_length=length,
         cell_px=float(cell_px),
+        support=cell_support(xs, ys, event_xy[0], event_xy[1], cell_px),
     )

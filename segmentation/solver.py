@@ -164,6 +164,38 @@ def _uncertainty_terms(
     return np.ones(m), np.sqrt(1.0 + (spread / sigma) ** 2)
 
 
+SUPPORT_WEIGHT_RANGE = (0.25, 4.0)
+"""Clip of a node's support weight (see ``SegmentationConfig.support_exponent``): a dense
+cell can count at most 4 nodes' worth, a lone event a quarter."""
+
+
+def support_weights(support: np.ndarray | None, exponent: float) -> np.ndarray:
+    """Per-node weight (s / median s)^exponent, clipped to :data:`SUPPORT_WEIGHT_RANGE`.
+
+    Example:
+        >>> support_weights(np.array([1.0, 4.0, 4.0, 64.0]), 0.5).tolist()
+        [0.5, 1.0, 1.0, 4.0]
+    """
+    s = np.ones(0) if support is None else np.asarray(support, dtype=np.float64)
+    if exponent == 0 or len(s) == 0:
+        return np.ones(len(s))
+    return np.clip((s / np.median(s)) ** exponent, *SUPPORT_WEIGHT_RANGE)
+
+
+def _event_xy(event_xy) -> tuple[np.ndarray, np.ndarray] | None:
+    if event_xy is None:
+        return None
+    try:
+        ex, ey = (np.asarray(v, dtype=np.float64).ravel() for v in event_xy)
+    except (TypeError, ValueError) as err:
+        raise EventDataError(f"event_xy must be a pair of numeric (N,) arrays: {err}") from None
+    if len(ex) != len(ey):
+        raise EventDataError(f"event_xy: x has {len(ex)} values, y has {len(ey)}")
+    if not (np.isfinite(ex).all() and np.isfinite(ey).all()):
+        raise EventDataError("event_xy holds NaN or infinite positions")
+    return ex, ey
+
+
 def _origin(config: SegmentationConfig, sensor_size) -> tuple[float, float]:
     if config.origin_px is not None:
         return config.origin_px
@@ -183,6 +215,7 @@ def segment_normal_flow(
     sensor_size: tuple[int, int] | None = None,
     previous: SegmentationResult | None = None,
     tracked_objects: tuple[np.ndarray, np.ndarray] | None = None,
+    event_xy: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> SegmentationResult:
     """Segment one window of normal flow into background and independently moving objects.
 
@@ -198,6 +231,9 @@ def segment_normal_flow(
             models (about the same origin). They replace the prediction from ``previous``'s
             objects, so an object missed in one window still gets its candidate in the next
             (the pipeline passes its tracks); ``previous`` still gives the background candidate.
+        event_xy: optional ``(x, y)`` of all the window's events (px, the flows' coordinates),
+            for each node's support (``config.support_exponent``): pass them when flow was
+            computed for a subset of the events. None: each usable flow counts as one event.
     Returns:
         :class:`SegmentationResult`. Inputs are not modified.
     """
@@ -207,7 +243,8 @@ def segment_normal_flow(
     tic, cpu = time.perf_counter(), time.process_time()
     graph = build_node_graph(a["x"], a["y"], a["t"], a["nx"], a["ny"], a.get("uncertainty"),
                              cfg.cell_px, cfg.min_flow_px_s, cfg.max_uncertainty,
-                             cfg.node_window_us, cfg.uncertainty_scale, cfg.cell_rule, cfg.max_nodes)
+                             cfg.node_window_us, cfg.uncertainty_scale, cfg.cell_rule, cfg.max_nodes,
+                             _event_xy(event_xy))
     origin = _origin(cfg, sensor_size)
     # When the node budget made the cell grow by g, each node stands for ~g nodes of the finer
     # grid along an edge: the lengths tied to the node spacing grow by g and the label cost
@@ -241,6 +278,7 @@ def segment_normal_flow(
         if cfg.residual_scale_noise * noise > sigma:
             sigma, rings = cfg.residual_scale_noise * noise, None  # the rings' scale changed
     conf, node_scale = _uncertainty_terms(cfg, graph, a.get("uncertainty"), sigma)
+    conf = conf * support_weights(graph.support, cfg.support_exponent)
     if cfg.sampling_flow == "local" and m:
         if rings is None:
             rings = local_translations(graph.nx, graph.ny, graph.edges, sigma)

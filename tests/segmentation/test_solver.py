@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from evseg.errors import EventDataError
 
 from evseg.segmentation import SegmentationConfig, propagate_labels, segment_normal_flow
 from evseg.segmentation.motion_model import flow_field
@@ -275,3 +276,37 @@ def test_node_budget_on_a_large_sensor_keeps_the_objects():
     for k in (1, 2):
         vals, counts = np.unique(lab[truth == k], return_counts=True)
         assert vals[np.argmax(counts)] >= 1 and counts.max() >= 0.9 * (truth == k).sum()
+
+
+def test_support_weighting_finds_a_dense_object_whose_nodes_alone_cannot_pay_its_label():
+    """Node support (events per cell): the same flows, but the object's cells fired 16x more
+    events than the background's. Its nodes then weigh (16)^0.25 = 2 each, so a label cost
+    above what its nodes save at weight 1 (tau^2 = 9 each) is paid at weight 2."""
+    s = synthetic_scene(n_flows=2500, n_objects=1, seed=4)
+    on = s.label == 1
+    saving = 9.0 * on.sum()  # an upper bound on the object's saving at weight 1
+    # Events of the window: every flow's position, and 15 more events at each object flow.
+    ex = np.concatenate([s.x, np.repeat(s.x[on], 15)])
+    ey = np.concatenate([s.y, np.repeat(s.y[on], 15)])
+    kw = dict(sensor_size=s.sensor_size, event_xy=(ex, ey))
+    flat = SegmentationConfig(lambda_m=1.3 * saving, support_exponent=0.0)
+    assert segment_normal_flow(s.x, s.y, s.t, s.nx, s.ny, config=flat, **kw).n_objects == 0
+    weighted = SegmentationConfig(lambda_m=1.3 * saving, support_exponent=0.25)
+    r = segment_normal_flow(s.x, s.y, s.t, s.nx, s.ny, config=weighted, **kw)
+    assert r.n_objects == 1
+    lab, share = majority(s.label[r.node_index], r.node_labels, 1)
+    assert lab == 1 and share > 0.9
+    # Without the events, each flow counts once: uniform support, the object cannot pay.
+    r = segment_normal_flow(s.x, s.y, s.t, s.nx, s.ny, config=weighted, sensor_size=s.sensor_size)
+    assert r.n_objects == 0
+
+
+@pytest.mark.parametrize("event_xy, match", [
+    ((np.zeros(3), np.zeros(2)), "x has 3 values, y has 2"),
+    ((np.array([0.0, np.nan]), np.zeros(2)), "NaN or infinite"),
+    ((np.zeros(2), ["a", "b"]), "numeric"),
+])
+def test_bad_event_positions_are_a_clear_error(event_xy, match):
+    s = synthetic_scene(n_flows=300, n_objects=1, seed=1)
+    with pytest.raises(EventDataError, match=match):
+        segment_normal_flow(s.x, s.y, s.t, s.nx, s.ny, sensor_size=s.sensor_size, event_xy=event_xy)
