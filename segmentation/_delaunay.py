@@ -67,7 +67,7 @@ def _angle_key(dx, dy, size):  # pragma: no cover
     return k % size
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _legalize(h0, px, py, tri, twin, hull_tri, stack):  # pragma: no cover
     """Lawson flips from half-edge ``h0``, whose opposite vertex is the new point."""
     top = 0
@@ -117,7 +117,7 @@ def _legalize(h0, px, py, tri, twin, hull_tri, stack):  # pragma: no cover
         top += 1
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _add_triangle(t, a, b, c, ha, hb, hc, tri, twin):  # pragma: no cover
     """Triangle (a, b, c) in slot t; ha, hb, hc: twins of a->b, b->c, c->a (-1 = none)."""
     h = 3 * t
@@ -136,7 +136,7 @@ def _add_triangle(t, a, b, c, ha, hb, hc, tri, twin):  # pragma: no cover
     return h
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def sweep_delaunay(px, py):  # pragma: no cover
     """Delaunay triangulation of n >= 3 distinct, not all collinear points.
 

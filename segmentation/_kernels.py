@@ -14,7 +14,7 @@ import numpy as np
 from numba import njit
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def ring_translations(centre, hx, hy, norm, m, scale, iterations, min_conditioning, nx, ny):  # pragma: no cover
     """Per-node least-squares translation of its ring pairs ``(centre[k], member k)`` with
     unit normals ``hx, hy`` and magnitudes ``norm`` (member values, px/s): first unweighted,
@@ -60,7 +60,7 @@ def ring_translations(centre, hx, hy, norm, m, scale, iterations, min_conditioni
     return tx, ty, ok
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def grid_nearest(node_x, node_y, qx, qy, max_distance, bucket):  # pragma: no cover
     """Index of the nearest node (px coordinates) for every query point, -1 when none lies
     within ``max_distance`` px; ties go to the lowest node index.
@@ -128,7 +128,7 @@ def grid_nearest(node_x, node_y, qx, qy, max_distance, bucket):  # pragma: no co
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def triangle_edges(simplices, neighbors, n):  # pragma: no cover
     """Unique edges (E, 2), i < j, in (i, j) order, of a triangulation of ``n`` points.
 
@@ -177,7 +177,7 @@ def triangle_edges(simplices, neighbors, n):  # pragma: no cover
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def expansion_terms(labels, alpha, data, edges, edge_w):  # pragma: no cover
     """One pass over nodes and edges giving what an expansion move on ``alpha`` needs.
 
@@ -223,7 +223,7 @@ def expansion_terms(labels, alpha, data, edges, edge_w):  # pragma: no cover
     return diff, pair_i[:n_pairs], pair_j[:n_pairs], pair_w[:n_pairs], bound
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def confirmed_flows(starts, nx, ny, cert, max_run, rel_tol, abs_tol):  # pragma: no cover
     """Position of each run's node for the 'confirmed' rule of :func:`.preprocessing.select_nodes`.
 
@@ -254,7 +254,7 @@ def confirmed_flows(starts, nx, ny, cert, max_run, rel_tol, abs_tol):  # pragma:
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def data_cost_matrix(q, x, y, nx, ny, sigma, node_scale, confidence, tau2):  # pragma: no cover
     """(M, L) truncated squared normalised residuals, the operations of
     :func:`evseg.segmentation.energy.data_costs` in the same order (so the same floats) in
@@ -279,7 +279,7 @@ def data_cost_matrix(q, x, y, nx, ny, sigma, node_scale, confidence, tau2):  # p
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def same_label_components(labels, edges):  # pragma: no cover
     """Connected components of the graph restricted to edges whose two ends share a label.
 

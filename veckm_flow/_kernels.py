@@ -21,7 +21,7 @@ import numpy as np
 from numba import njit, prange
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def pixel_lists(x, y, dt, pol, width, height):  # pragma: no cover
     """Counting sort of the events by pixel: ``(start (H*W + 1,), sdt (N,), spol (N,),
     row_used (H,))``; the events of pixel ``p = y * W + x`` have times ``sdt[start[p]:start[p+1]]``
@@ -175,7 +175,7 @@ def _emit(r, o, xx, yy, y_lo, y_hi, x0, row_sums, row_cnt, tdt, tpol, rows, cols
     out[o, 2 * d] = np.log1p(np.float32(cnt))
 
 
-@njit(cache=True, parallel=True, fastmath=True)
+@njit(cache=True, parallel=True, fastmath=True, nogil=True)
 def window_features(start, sdt, spol, hi, lo, lo_bits, row_used, rows, cols, k, nblk,
                     tx, ty, tdt, tpol, slot, blk_start):  # pragma: no cover
     """Features (T, 2d+1) float32 of the targets: for each, the sum over its (2k+1)^2 pixel
@@ -226,7 +226,7 @@ def window_features(start, sdt, spol, hi, lo, lo_bits, row_used, rows, cols, k, 
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def latest_per_cell(cell, n_cells):  # pragma: no cover
     """Position of the last event in each cell (-1 where none): int64 (n_cells,)."""
     last = np.full(n_cells, -1, np.int64)
