@@ -12,10 +12,10 @@ Per window (default 10 ms, back to back):
    node is close enough.
 
 As in the paper's system, whose pre-processing and segmentation are two independently running
-modules, :meth:`MotionSegmentationPipeline.run` estimates the next window's normal flow on a
-second thread while the current window is segmented (``PipelineConfig.overlap``): the flow
-does not depend on the segmentation, so the results are identical and a stream goes through
-faster on two cores.
+modules, :meth:`MotionSegmentationPipeline.run` estimates the next window's normal flow and
+prepares its node graph (:func:`evseg.segmentation.prepare_window`) on a second thread while
+the current window is segmented (``PipelineConfig.overlap``): neither depends on the
+segmentation, so the results are identical and a stream goes through faster on two cores.
 
 Example::
 
@@ -70,10 +70,11 @@ class PipelineConfig:
             :mod:`evseg.veckm_flow.context`); they get no flow and no label themselves.
             0 = each window on its own.
         overlap: in :meth:`MotionSegmentationPipeline.run`, estimate the next window's normal
-            flow on a second thread while this one is segmented (built-in estimators only; the
-            estimator then uses ``threads`` or, when None, one thread, leaving the other core
-            to the segmentation). Same results; on the 2-core development machine 40 -> 34 ms
-            per window at 1 M events/s (``evseg bench pipeline``). The next window is read
+            flow and prepare its node graph on a second thread while this one is segmented
+            (built-in estimators only; the estimator then uses ``threads`` or, when None, one
+            thread, leaving the other core to the segmentation). Same results; on the 2-core
+            development machine ~38 -> ~30 ms per window at 1 M events/s (``evseg bench
+            pipeline``). The next window is read
             before this one is segmented: from a file that costs nothing, from a live source
             that the pipeline keeps up with it holds each result until the next window has
             arrived (one window, 10 ms, later), so set False there for the lowest latency.
@@ -117,7 +118,8 @@ class WindowResult:
         flow_index, flow: positions (in ``events``) and (nx, ny) px/s of the target flows.
         segmentation: the raw :class:`evseg.segmentation` result (labels 1..K, models).
         timings_ms: stage -> milliseconds ('flow', 'preprocessing', ...; with ``overlap`` the
-            flow ran on the other thread while the previous window was segmented).
+            flow, the pre-processing and the window-local share of 'initialization' ran on the
+            other thread while the previous window was segmented).
     """
 
     index: int
@@ -282,7 +284,18 @@ class MotionSegmentationPipeline:
 
     def _segment(self, window: Window, flow: NormalFlowLike, timings: dict[str, float]) -> WindowResult:
         """Everything after the normal flow (steps 2-5 of the module docstring)."""
-        from evseg.segmentation import propagate_labels, segment_normal_flow
+        return self._finish(window, *self._prepare(window, flow, timings))
+
+    def _estimate_and_prepare(self, window: Window, context: np.ndarray | None) -> tuple:
+        """The overlap thread's share of a window: its normal flow and :meth:`_prepare`."""
+        flow, timings = self._estimate_flow(window.events, context)
+        return self._prepare(window, flow, timings)
+
+    def _prepare(self, window: Window, flow: NormalFlowLike, timings: dict[str, float]) -> tuple:
+        """Flow positions (undistorted), the window's event positions and the segmentation's
+        window-local part (:func:`evseg.segmentation.prepare_window`: nodes, graph, per-node
+        terms), none of which needs the previous window. Safe to run on the overlap thread."""
+        from evseg.segmentation import prepare_window
 
         ev = window.events
         idx = np.asarray(flow.index, dtype=np.int64)
@@ -307,11 +320,18 @@ class MotionSegmentationPipeline:
         timings["undistort"] = (time.perf_counter() - t0) * 1e3
 
         # All the window's events give each node its support (flow covers only the targets).
-        seg = segment_normal_flow(
-            fx, fy, ft, nx, ny, uncertainty=unc, config=self.config.segmentation,
-            sensor_size=self.sensor_size, previous=self._previous,
-            tracked_objects=self._tracked_objects(), event_xy=(ex, ey),
-        )
+        prepared = prepare_window(fx, fy, ft, nx, ny, uncertainty=unc, config=self.config.segmentation,
+                                  sensor_size=self.sensor_size, event_xy=(ex, ey))
+        return prepared, idx, nx, ny, ex, ey, timings
+
+    def _finish(self, window: Window, prepared, idx: np.ndarray, nx: np.ndarray, ny: np.ndarray,
+                ex: np.ndarray, ey: np.ndarray, timings: dict[str, float]) -> WindowResult:
+        """Segmentation with motion prediction from the previous window, object ids, labels of
+        every event (needs the previous window's result: runs in window order)."""
+        from evseg.segmentation import propagate_labels, segment_prepared
+
+        ev = window.events
+        seg = segment_prepared(prepared, previous=self._previous, tracked_objects=self._tracked_objects())
         for k, v in getattr(seg, "timings", {}).items():
             timings[k] = v
         self._previous = seg
@@ -400,15 +420,15 @@ class MotionSegmentationPipeline:
                     window = next(windows, None)
                 except BaseException:
                     if pending is not None:  # the window read before the failure still counts
-                        yield self._segment(pending[0], *pending[1].result())
+                        yield self._finish(pending[0], *pending[1].result())
                         pending = None
                     raise
                 job = None
                 if window is not None:
-                    job = (window, pool.submit(self._estimate_flow, window.events, history.before(window)))
+                    job = (window, pool.submit(self._estimate_and_prepare, window, history.before(window)))
                     history.add(window)
                 if pending is not None:
-                    yield self._segment(pending[0], *pending[1].result())
+                    yield self._finish(pending[0], *pending[1].result())
                 if job is None:
                     return
                 pending = job

@@ -12,12 +12,17 @@ Modules, one idea each: :mod:`.config` (parameters, YAML presets), :mod:`.prepro
 """
 
 from evseg.segmentation.config import SegmentationConfig, load_segmentation_config
-from evseg.segmentation.solver import SegmentationResult, propagate_labels, segment_normal_flow
+from evseg.segmentation.solver import (
+    PreparedWindow, SegmentationResult, prepare_window, propagate_labels, segment_normal_flow, segment_prepared,
+)
 
 __all__ = [
+    "PreparedWindow",
     "SegmentationConfig",
     "SegmentationResult",
     "load_segmentation_config",
+    "prepare_window",
     "propagate_labels",
     "segment_normal_flow",
+    "segment_prepared",
 ]

@@ -61,7 +61,7 @@ from evseg.segmentation.motion_model import flow_field, model_change_px_s
 from evseg.segmentation.outputs import (
     background_layers, nearest_node_labels, region_box, region_mask, split_objects,
 )
-from evseg.segmentation.preprocessing import build_node_graph
+from evseg.segmentation.preprocessing import NodeGraph, build_node_graph
 
 
 @dataclass(frozen=True)
@@ -237,6 +237,65 @@ def segment_normal_flow(
     Returns:
         :class:`SegmentationResult`. Inputs are not modified.
     """
+    prepared = prepare_window(x, y, t, nx, ny, uncertainty, config, sensor_size, event_xy)
+    return segment_prepared(prepared, previous, tracked_objects)
+
+
+@dataclass(frozen=True)
+class PreparedWindow:
+    """What :func:`prepare_window` derives from one window's normal flow alone: the node graph
+    and every per-node term of the energy (no motion model, nothing of the previous window).
+
+    Attributes:
+        config, sensor_size, origin: as given / chosen (origin px, the models' reference).
+        graph: the :class:`~.preprocessing.NodeGraph`. xr, yr: (M,) node positions from the
+            origin, px. grown: the node budget's cell growth g (1 without a budget).
+        lambda_m: label cost (lambda_m / g). sigma: residual scale, px/s. edge_w: (E,) Potts
+            weights. radius: largest node distance from the origin, px. t_ref: reference time
+            (middle of the nodes' time span), us.
+        conf, node_scale: (M,) data-term weights and per-node residual scale factors (or None).
+        fit_w: (M,) fitting weights. vote_x, vote_y, voting: fast-sampling votes (px/s) and
+            which nodes vote. suspect: (M,) likely outliers. timings: ms of this step.
+    """
+
+    config: SegmentationConfig
+    sensor_size: tuple[int, int] | None
+    origin: tuple[float, float]
+    graph: NodeGraph
+    xr: np.ndarray
+    yr: np.ndarray
+    grown: float
+    lambda_m: float
+    sigma: float
+    edge_w: np.ndarray
+    radius: float
+    t_ref: int
+    conf: np.ndarray
+    node_scale: np.ndarray | None
+    fit_w: np.ndarray
+    vote_x: np.ndarray
+    vote_y: np.ndarray
+    voting: np.ndarray
+    suspect: np.ndarray
+    timings: dict
+
+
+def prepare_window(
+    x: np.ndarray,
+    y: np.ndarray,
+    t: np.ndarray,
+    nx: np.ndarray,
+    ny: np.ndarray,
+    uncertainty: np.ndarray | None = None,
+    config: SegmentationConfig = SegmentationConfig(),
+    sensor_size: tuple[int, int] | None = None,
+    event_xy: tuple[np.ndarray, np.ndarray] | None = None,
+) -> PreparedWindow:
+    """The part of :func:`segment_normal_flow` that needs no earlier window: pre-processing
+    (nodes, Delaunay graph) and the per-node terms (residual scale from the flow's 1-ring
+    noise, confidences, fast-sampling votes). Same arguments; a streaming caller can prepare
+    window t + 1 on another thread while window t is segmented (:func:`segment_prepared`).
+    """
     a = _validate(x, y, t, nx, ny, uncertainty)
     cfg = config
     timings = {}
@@ -298,6 +357,30 @@ def segment_normal_flow(
             suspect = coherent & (np.abs(r_self) > cfg.truncation * own)
     # Fitting weight: the confidence, and (sigma / sigma_k)^2 where a node has its own scale.
     fit_w = conf if node_scale is None else conf / node_scale**2
+    timings["initialization"] = (time.perf_counter() - tic) * 1e3
+    timings["initialization_cpu"] = (time.process_time() - cpu) * 1e3
+    return PreparedWindow(
+        config=cfg, sensor_size=sensor_size, origin=origin, graph=graph, xr=xr, yr=yr, grown=grown,
+        lambda_m=lambda_m, sigma=sigma, edge_w=edge_w, radius=radius, t_ref=t_ref, conf=conf,
+        node_scale=node_scale, fit_w=fit_w, vote_x=vote_x, vote_y=vote_y, voting=voting,
+        suspect=suspect, timings=timings)
+
+
+def segment_prepared(
+    prepared: PreparedWindow,
+    previous: SegmentationResult | None = None,
+    tracked_objects: tuple[np.ndarray, np.ndarray] | None = None,
+) -> SegmentationResult:
+    """Segment a window prepared by :func:`prepare_window` (``previous``, ``tracked_objects``
+    as in :func:`segment_normal_flow`, which is ``segment_prepared(prepare_window(...))``)."""
+    pw = prepared
+    cfg, sensor_size, origin, graph = pw.config, pw.sensor_size, pw.origin, pw.graph
+    xr, yr, grown, lambda_m, sigma = pw.xr, pw.yr, pw.grown, pw.lambda_m, pw.sigma
+    edge_w, radius, t_ref, conf, node_scale = pw.edge_w, pw.radius, pw.t_ref, pw.conf, pw.node_scale
+    fit_w, vote_x, vote_y, voting, suspect = pw.fit_w, pw.vote_x, pw.vote_y, pw.voting, pw.suspect
+    m = len(graph)
+    timings = dict(pw.timings)
+    tic, cpu = time.perf_counter(), time.process_time()
     lm_kw = dict(loss=cfg.robust_loss, loss_scale_px_s=cfg.robust_scale * sigma,
                  truncation=cfg.truncation / cfg.robust_scale, iterations=cfg.lm_iterations,
                  damping=cfg.lm_damping, weights=fit_w, affine_prior_px=cfg.affine_prior_px)
@@ -330,8 +413,9 @@ def segment_normal_flow(
                             cfg.min_candidate_separation * sigma)
     models = np.concatenate([predicted, sampled]) if m else np.empty((0, 4))
     n_candidates = len(models)
-    timings["initialization"] = (time.perf_counter() - tic) * 1e3
-    timings["initialization_cpu"] = (time.process_time() - cpu) * 1e3
+    # The prepared share (1-ring noise, votes) and the model-dependent share (prediction, sampling).
+    timings["initialization"] += (time.perf_counter() - tic) * 1e3
+    timings["initialization_cpu"] += (time.process_time() - cpu) * 1e3
 
     tic, cpu = time.perf_counter(), time.process_time()
     labels = np.zeros(m, dtype=np.int64)

@@ -310,3 +310,22 @@ def test_bad_event_positions_are_a_clear_error(event_xy, match):
     s = synthetic_scene(n_flows=300, n_objects=1, seed=1)
     with pytest.raises(EventDataError, match=match):
         segment_normal_flow(s.x, s.y, s.t, s.nx, s.ny, sensor_size=s.sensor_size, event_xy=event_xy)
+
+
+def test_prepared_window_segments_exactly_like_the_one_call():
+    """prepare_window + segment_prepared (the pipeline prepares window t + 1 on its worker
+    thread) give the same result as segment_normal_flow, with and without a previous window."""
+    from evseg.segmentation import prepare_window, segment_prepared
+
+    s = synthetic_scene(n_flows=2000, n_objects=2, seed=5)
+    cfg = SegmentationConfig()
+    first = segment_normal_flow(s.x, s.y, s.t, s.nx, s.ny, config=cfg, sensor_size=s.sensor_size)
+    for previous in (None, first):
+        one = segment_normal_flow(s.x, s.y, s.t + 10_000, s.nx, s.ny, config=cfg,
+                                  sensor_size=s.sensor_size, previous=previous)
+        prepared = prepare_window(s.x, s.y, s.t + 10_000, s.nx, s.ny, config=cfg, sensor_size=s.sensor_size)
+        two = segment_prepared(prepared, previous=previous)
+        np.testing.assert_array_equal(one.node_labels, two.node_labels)
+        np.testing.assert_array_equal(one.models, two.models)
+        assert one.boxes == two.boxes and one.n_objects == two.n_objects >= 2
+    assert two.n_predicted >= 2  # the previous window's objects were predicted
