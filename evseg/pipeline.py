@@ -249,7 +249,7 @@ class MotionSegmentationPipeline:
 
         def flow_fn(events: np.ndarray, sensor_size: tuple[int, int], context: np.ndarray | None):
             targets = select_targets(events, sensor_size, cell_px=cfg.target_cell_px)
-            # Flow is estimated in raw sensor pixels; undistortion happens after (_segment()).
+            # Flow is estimated in raw sensor pixels; undistortion happens after (_prepare()).
             return flow_with_context(est, events, sensor_size, targets, context)
 
         return flow_fn
@@ -311,11 +311,9 @@ class MotionSegmentationPipeline:
         t0 = time.perf_counter()
         if self._undistortion is not None:
             fx, fy, nx, ny = undistort_normal_flow(self._undistortion, fx, fy, nx, ny)
-        else:
-            fx, fy = fx.astype(np.float64), fy.astype(np.float64)
-        if self._undistortion is not None:
             ex, ey = self._undistortion.xu[ev["y"], ev["x"]], self._undistortion.yu[ev["y"], ev["x"]]
         else:
+            fx, fy = fx.astype(np.float64), fy.astype(np.float64)
             ex, ey = ev["x"].astype(np.float64), ev["y"].astype(np.float64)
         timings["undistort"] = (time.perf_counter() - t0) * 1e3
 
