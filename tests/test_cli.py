@@ -20,3 +20,21 @@ def test_console_script_help_is_fast_and_torch_free():
     code = "import sys; from evseg.cli import build_parser; build_parser(); print('torch' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+def test_commands_make_openmp_wait_passively_except_torch_training(monkeypatch):
+    """OMP_WAIT_POLICY=PASSIVE for the inference commands (spinning OpenMP threads of the
+    encoder slow the network right after it), never over the user's own setting, and not for
+    train/export, where torch's CPU steps are faster with OpenMP's default."""
+    import os
+
+    from evseg.cli import _openmp_waits_passively
+
+    monkeypatch.delenv("OMP_WAIT_POLICY", raising=False)
+    _openmp_waits_passively("train")
+    assert "OMP_WAIT_POLICY" not in os.environ
+    _openmp_waits_passively("segment")
+    assert os.environ["OMP_WAIT_POLICY"] == "PASSIVE"
+    monkeypatch.setenv("OMP_WAIT_POLICY", "ACTIVE")
+    _openmp_waits_passively("bench")
+    assert os.environ["OMP_WAIT_POLICY"] == "ACTIVE"
