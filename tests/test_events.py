@@ -31,4 +31,3 @@ def test_stream_windows_are_views_and_cover_all_events():
     assert sum(len(w) for w in wins) == len(ev)
     assert all(np.shares_memory(w.events, ev) for w in wins if len(w))
     assert stream.duration_us == int(t[-1])
-

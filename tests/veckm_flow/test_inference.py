@@ -93,4 +93,3 @@ def test_thread_count_changes_nothing_but_rounding(random_onnx, make_slice):
     # rounding differs (~1e-6 relative), nothing else.
     np.testing.assert_allclose(one.nx, two.nx, rtol=1e-3, atol=1e-2)
     np.testing.assert_allclose(one.uncertainty, two.uncertainty, rtol=1e-3)
-
