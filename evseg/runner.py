@@ -123,8 +123,15 @@ def run_segment_job(job: SegmentJob) -> str:
     sensor_size = parse_sensor_size(job.sensor_size) if isinstance(job.sensor_size, str) else job.sensor_size
     with open_recording(job.recording, format=job.format, topic=job.topic, sensor_size=sensor_size,
                         sort=job.sort) as rec:
+        inferred = ""
         if rec.sensor_size is None:
-            raise ConfigError(f"{job.recording}: the file does not give the sensor size; pass --sensor-size WxH")
+            # As `evseg flow`: the size of the pixel grid the events use (one extra pass).
+            for _ in rec.chunks():
+                pass
+            if rec.sensor_size is None:
+                raise ConfigError(f"{job.recording}: no events, and no --sensor-size given")
+            inferred = (f"; sensor size {rec.sensor_size[0]}x{rec.sensor_size[1]} inferred from the events "
+                        "(pass --sensor-size WxH if the sensor is larger)")
         if calibration is None:
             calibration = rec.calibration
         elif tuple(calibration.sensor_size) != tuple(rec.sensor_size):
@@ -188,5 +195,5 @@ def run_segment_job(job: SegmentJob) -> str:
     return (
         f"wrote {job.out}: {writer.n_written} events, {n_windows} windows{speed}, "
         f"{len(ids)} distinct objects, {n_objects / max(n_windows, 1):.2f} objects per window"
-        + (f"; video {job.video}" if job.video else "")
+        + (f"; video {job.video}" if job.video else "") + inferred
     )

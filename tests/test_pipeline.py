@@ -200,6 +200,25 @@ def test_progress_bar_without_a_known_duration(sim, tmp_path, capsys):
     assert "%" not in last and "0.04 s of recording" in last and "4 windows" in last
 
 
+def test_segment_infers_an_unknown_sensor_size_like_flow(sim, tmp_path, capsys):
+    """An npz of bare event arrays gives no sensor size: `evseg segment` takes the events' pixel
+    grid, as `evseg flow` does, and says so; labels are those of the run with that size given."""
+    from evseg.results import load_result
+
+    rec, d = sim
+    ev = rec.stream.events
+    np.savez(tmp_path / "sim.npz", t=ev["t"], x=ev["x"], y=ev["y"], p=ev["p"])
+    size = f"{int(ev['x'].max()) + 1}x{int(ev['y'].max()) + 1}"
+    assert main(["segment", str(tmp_path / "sim.npz"), "--flow", str(d / "flow.npz"), "--no-progress",
+                 "--out", str(tmp_path / "a.npz")]) == 0
+    assert f"sensor size {size} inferred from the events" in capsys.readouterr().out
+    assert main(["segment", str(tmp_path / "sim.npz"), "--sensor-size", size, "--flow", str(d / "flow.npz"),
+                 "--no-progress", "--out", str(tmp_path / "b.npz")]) == 0
+    a, b = load_result(tmp_path / "a.npz"), load_result(tmp_path / "b.npz")
+    np.testing.assert_array_equal(a.label, b.label)
+    assert a.sensor_size == b.sensor_size == tuple(int(v) for v in size.split("x"))
+
+
 @pytest.fixture(scope="module")
 def short_stream():
     from evseg.simulator import load_scene_preset, simulate
