@@ -296,6 +296,7 @@ class MotionSegmentationPipeline:
         window-local part (:func:`evseg.segmentation.prepare_window`: nodes, graph, per-node
         terms), none of which needs the previous window. Safe to run on the overlap thread."""
         from evseg.segmentation import prepare_window
+        from evseg.segmentation.outputs import nearest_node_index
 
         ev = window.events
         idx = np.asarray(flow.index, dtype=np.int64)
@@ -320,13 +321,19 @@ class MotionSegmentationPipeline:
         # All the window's events give each node its support (flow covers only the targets).
         prepared = prepare_window(fx, fy, ft, nx, ny, uncertainty=unc, config=self.config.segmentation,
                                   sensor_size=self.sensor_size, event_xy=(ex, ey))
-        return prepared, idx, nx, ny, ex, ey, timings
+        # Each event's nearest node depends on the node positions only (label propagation).
+        t0 = time.perf_counter()
+        nearest = nearest_node_index(prepared.graph.x, prepared.graph.y, ex, ey,
+                                     prepared.config.max_propagation_px * prepared.grown)
+        timings["propagation"] = (time.perf_counter() - t0) * 1e3
+        return prepared, idx, nx, ny, nearest, timings
 
     def _finish(self, window: Window, prepared, idx: np.ndarray, nx: np.ndarray, ny: np.ndarray,
-                ex: np.ndarray, ey: np.ndarray, timings: dict[str, float]) -> WindowResult:
+                nearest: np.ndarray, timings: dict[str, float]) -> WindowResult:
         """Segmentation with motion prediction from the previous window, object ids, labels of
         every event (needs the previous window's result: runs in window order)."""
-        from evseg.segmentation import propagate_labels, segment_prepared
+        from evseg.segmentation import segment_prepared
+        from evseg.segmentation.outputs import labels_of_nearest
 
         ev = window.events
         seg = segment_prepared(prepared, previous=self._previous, tracked_objects=self._tracked_objects())
@@ -336,7 +343,7 @@ class MotionSegmentationPipeline:
 
         t0 = time.perf_counter()
         mapping = self._tracker.update({int(k): tuple(v) for k, v in seg.boxes.items()})
-        seg_labels = propagate_labels(seg, ex, ey)  # -1 beyond segmentation.max_propagation_px
+        seg_labels = labels_of_nearest(seg.node_labels, nearest)  # -1 beyond max_propagation_px
         # Per-window labels 1..K -> persistent object ids (0 and -1 unchanged).
         lut = np.arange(-1, seg.n_objects + 1, dtype=np.int64)
         for label, oid in mapping.items():
@@ -344,7 +351,7 @@ class MotionSegmentationPipeline:
         labels = lut[seg_labels + 1].astype(np.int16)
         boxes = {mapping[int(k)]: tuple(int(c) for c in v) for k, v in seg.boxes.items()}
         masks = {mapping[int(k)]: v for k, v in (getattr(seg, "masks", None) or {}).items()}
-        timings["propagation"] = (time.perf_counter() - t0) * 1e3
+        timings["propagation"] += (time.perf_counter() - t0) * 1e3
         self._predict_tracks(seg, mapping)
         return WindowResult(
             index=window.index, t0_us=window.t0_us, t1_us=window.t1_us, first_event=window.first_event,

@@ -219,7 +219,17 @@ def nearest_node_labels(
     y: np.ndarray,
     max_distance_px: float,
 ) -> np.ndarray:
-    """Label of the nearest node for every point (N,), -1 beyond ``max_distance_px`` or no node.
+    """Label of the nearest node for every point (N,), -1 beyond ``max_distance_px`` or no node
+    (:func:`nearest_node_index`, then :func:`labels_of_nearest`)."""
+    return labels_of_nearest(node_labels, nearest_node_index(node_x, node_y, x, y, max_distance_px))
+
+
+def nearest_node_index(
+    node_x: np.ndarray, node_y: np.ndarray, x: np.ndarray, y: np.ndarray, max_distance_px: float
+) -> np.ndarray:
+    """Index of the nearest node for every point (N,) int64, -1 beyond ``max_distance_px`` or no
+    node. It depends on the node positions only, so a streaming caller can find it before the
+    window is segmented.
 
     Exact nearest node (Euclidean, ties to the lowest node index) by a bucket-grid search
     (:func:`evseg.segmentation._kernels.grid_nearest`), about 5x faster than a k-d tree here.
@@ -228,9 +238,27 @@ def nearest_node_labels(
 
     x = np.ascontiguousarray(x, dtype=np.float64)
     y = np.ascontiguousarray(y, dtype=np.float64)
-    out = np.full(len(x), -1, dtype=np.int64)
     if len(node_x) == 0 or len(x) == 0:
-        return out
+        return np.full(len(x), -1, dtype=np.int64)
+    # Buckets of a third of the search radius: a query scans at most 5 rings of cells.
+    bucket = max(float(max_distance_px) / 3.0, 1.0)
+    return np.asarray(grid_nearest(np.ascontiguousarray(node_x, dtype=np.float64),
+                                   np.ascontiguousarray(node_y, dtype=np.float64), x, y,
+                                   float(max_distance_px), bucket), dtype=np.int64)
+
+
+def labels_of_nearest(node_labels: np.ndarray, nearest: np.ndarray) -> np.ndarray:
+    """(N,) int64 label of each point's nearest node (:func:`nearest_node_index`), -1 where none.
+
+    Example:
+        >>> labels_of_nearest(np.array([0, 2, 1]), np.array([1, -1, 0, 2])).tolist()
+        [2, -1, 0, 1]
+    """
+    nearest = np.asarray(nearest, dtype=np.int64)
+    out = np.full(len(nearest), -1, dtype=np.int64)
+    hit = nearest >= 0
+    out[hit] = np.asarray(node_labels, dtype=np.int64)[nearest[hit]]
+    return out
     # Buckets of a third of the search radius: a query scans at most 5 rings of cells.
     bucket = max(float(max_distance_px) / 3.0, 1.0)
     idx = grid_nearest(np.ascontiguousarray(node_x, dtype=np.float64),
