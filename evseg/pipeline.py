@@ -323,8 +323,7 @@ class MotionSegmentationPipeline:
                                   sensor_size=self.sensor_size, event_xy=(ex, ey))
         # Each event's nearest node depends on the node positions only (label propagation).
         t0 = time.perf_counter()
-        nearest = nearest_node_index(prepared.graph.x, prepared.graph.y, ex, ey,
-                                     prepared.config.max_propagation_px * prepared.grown)
+        nearest = nearest_node_index(prepared.graph.x, prepared.graph.y, ex, ey, prepared.max_propagation_px)
         timings["propagation"] = (time.perf_counter() - t0) * 1e3
         return prepared, idx, nx, ny, nearest, timings
 

@@ -119,6 +119,12 @@ def select_nodes(
         >>> select_nodes(x, y, t, nx, ny, None, cell_px=3.0, rule="preferred").tolist()
         [2, 3]
     """
+    cand = candidate_flows(x, y, t, nx, ny, uncertainty, min_flow_px_s, max_uncertainty, node_window_us)
+    return _select_among(cand, x, y, t, nx, ny, uncertainty, cell_px, rule)
+
+
+def _select_among(cand, x, y, t, nx, ny, uncertainty, cell_px: float, rule: str) -> np.ndarray:
+    """:func:`select_nodes` on the candidate flows ``cand`` (:func:`candidate_flows`)."""
     if rule not in CELL_RULES:
         raise ValueError(f"select_nodes: rule must be one of {CELL_RULES}, got {rule!r}")
     x = np.asarray(x, dtype=np.float64)
@@ -126,7 +132,6 @@ def select_nodes(
     t = np.asarray(t, dtype=np.int64)
     nx = np.asarray(nx, dtype=np.float64)
     ny = np.asarray(ny, dtype=np.float64)
-    cand = candidate_flows(x, y, t, nx, ny, uncertainty, min_flow_px_s, max_uncertainty, node_window_us)
     if len(cand) == 0:
         return cand
     unc = None if uncertainty is None else np.asarray(uncertainty, dtype=np.float64)
@@ -338,14 +343,11 @@ def build_node_graph(
     window's events, for each node's support (:func:`cell_support`); None counts the usable
     flows instead (flow given for every event). Inputs are not modified.
     """
-    cand = None
-    if max_nodes is not None or event_xy is None:
-        cand = candidate_flows(x, y, t, nx, ny, uncertainty, min_flow_px_s, max_uncertainty, node_window_us)
+    cand = candidate_flows(x, y, t, nx, ny, uncertainty, min_flow_px_s, max_uncertainty, node_window_us)
     if max_nodes is not None:
         cell_px = node_cell_px(np.asarray(x, dtype=np.float64)[cand], np.asarray(y, dtype=np.float64)[cand],
                                cell_px, max_nodes)
-    idx = select_nodes(x, y, t, nx, ny, uncertainty, cell_px, min_flow_px_s, max_uncertainty,
-                       node_window_us, cell_rule)
+    idx = _select_among(cand, x, y, t, nx, ny, uncertainty, cell_px, cell_rule)
     xs = np.asarray(x, dtype=np.float64)[idx]
     ys = np.asarray(y, dtype=np.float64)[idx]
     edges = delaunay_edges(xs, ys)

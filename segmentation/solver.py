@@ -279,6 +279,11 @@ class PreparedWindow:
     suspect: np.ndarray
     timings: dict
 
+    @property
+    def max_propagation_px(self) -> float:
+        """Label propagation's distance limit (px), grown with the node budget's cells."""
+        return self.config.max_propagation_px * self.grown
+
 
 def prepare_window(
     x: np.ndarray,
@@ -524,7 +529,7 @@ def segment_prepared(
         n_rounds=n_rounds, n_candidates=n_candidates, n_predicted=len(predicted),
         sigma_px_s=sigma, t_ref_us=t_ref,
         sensor_size=None if sensor_size is None else (int(sensor_size[0]), int(sensor_size[1])),
-        timings=timings, max_propagation_px=cfg.max_propagation_px * grown,
+        timings=timings, max_propagation_px=pw.max_propagation_px,
     )
 
 
