@@ -50,6 +50,9 @@ class NormalFlowLike(Protocol):
 
 FlowFn = Callable[[np.ndarray, tuple[int, int]], NormalFlowLike]
 
+WORKERS = ("thread", "process")
+"""Where :attr:`PipelineConfig.overlap` runs the next window's flow and preparation."""
+
 
 @dataclass(frozen=True)
 class PipelineConfig:
@@ -79,6 +82,15 @@ class PipelineConfig:
             that the pipeline keeps up with it holds each result until the next window has
             arrived (one window, 10 ms, later), so set False there for the lowest latency.
             False: one window after the other.
+        worker: where the overlapped share runs: ``"thread"`` (a thread of this process) or
+            ``"process"`` (a child process, started at the first overlapped run and kept
+            until :meth:`MotionSegmentationPipeline.close`). Python runs one thread's code at a
+            time, so the thread and the segmentation take turns in their Python parts; the
+            child process runs truly beside it and also fits round 0's sampled candidates
+            (:func:`evseg.segmentation.solver.with_sampled_candidates`) for the segmentation.
+            Same results either way. The process costs ~1.5 s to start and a second copy of
+            the model and libraries in memory (~0.3 GB), so it pays off on recordings, not on
+            a few windows; ``evseg segment`` and ``evseg bench pipeline`` use it.
         segmentation: a :class:`evseg.segmentation.SegmentationConfig` (None = defaults).
     """
 
@@ -90,6 +102,7 @@ class PipelineConfig:
     target_cell_px: int | None = 2
     flow_context_us: int = 20_000
     overlap: bool = True
+    worker: str = "thread"
     segmentation: object | None = None
 
     def __post_init__(self) -> None:
@@ -99,6 +112,8 @@ class PipelineConfig:
             raise ConfigError(f"pipeline.window_us must be positive, got {self.window_us}")
         if self.stride_us is not None and int(self.stride_us) <= 0:
             raise ConfigError(f"pipeline.stride_us must be positive, got {self.stride_us}")
+        if self.worker not in WORKERS:
+            raise ConfigError(f"pipeline.worker must be one of {', '.join(WORKERS)}, got {self.worker!r}")
         ctx = self.flow_context_us
         if not (isinstance(ctx, (int, np.integer)) or (isinstance(ctx, float) and ctx.is_integer())) or ctx < 0:
             raise ConfigError(f"pipeline.flow_context_us must be a non-negative integer (us), got {ctx!r}")
@@ -219,7 +234,22 @@ class MotionSegmentationPipeline:
             self._flow_fn = self._make_flow_fn()
         # A caller's flow_fn may not expect to run on another thread: only built-in estimators overlap.
         self._overlap = bool(self.config.overlap) and flow_fn is None and self._flow_fn is not None
+        self._worker_process = None  # the "process" worker's pool, started by the first run
+        self._worker_finalizer = None
         self.reset()
+
+    def close(self) -> None:
+        """Stop the worker process of ``worker="process"`` (if one was started); the pipeline
+        stays usable and starts a new one when it needs it. Also called by ``with`` and at exit."""
+        if self._worker_finalizer is not None:
+            self._worker_finalizer()
+        self._worker_process = self._worker_finalizer = None
+
+    def __enter__(self) -> "MotionSegmentationPipeline":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
 
     def reset(self) -> None:
         """Forget the previous window (motion prediction) and the object tracks."""
@@ -286,10 +316,17 @@ class MotionSegmentationPipeline:
         """Everything after the normal flow (steps 2-5 of the module docstring)."""
         return self._finish(window, *self._prepare(window, flow, timings))
 
-    def _estimate_and_prepare(self, window: Window, context: np.ndarray | None) -> tuple:
-        """The overlap thread's share of a window: its normal flow and :meth:`_prepare`."""
+    def _estimate_and_prepare(self, window: Window, context: np.ndarray | None, sample: bool = False) -> tuple:
+        """The overlap worker's share of a window: its normal flow and :meth:`_prepare`; with
+        ``sample``, also round 0's sampled candidates for both candidate counts (which one the
+        window uses depends on the previous window's objects, not known yet)."""
         flow, timings = self._estimate_flow(window.events, context)
-        return self._prepare(window, flow, timings)
+        prepared, *rest = self._prepare(window, flow, timings)
+        if sample:
+            from evseg.segmentation.solver import with_sampled_candidates
+
+            prepared = with_sampled_candidates(prepared)
+        return (prepared, *rest)
 
     def _prepare(self, window: Window, flow: NormalFlowLike, timings: dict[str, float]) -> tuple:
         """Flow positions (undistorted), the window's event positions and the segmentation's
@@ -416,29 +453,85 @@ class MotionSegmentationPipeline:
         sequential loop: a window whose successor cannot be read is still yielded first."""
         from concurrent.futures import ThreadPoolExecutor
 
-        pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="evseg-flow")
-        pending = None  # (window, future of (flow, timings))
+        if self.config.worker == "process":
+            pool = self._process_pool()
+            submit = lambda window, context: pool.submit(_prepare_in_worker, window, context)  # noqa: E731
+        else:
+            pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="evseg-flow")
+            submit = lambda window, context: pool.submit(self._estimate_and_prepare, window, context)  # noqa: E731
+        pending = job = None  # (window, future of what _finish needs)
         try:
             while True:
                 try:
                     window = next(windows, None)
                 except BaseException:
                     if pending is not None:  # the window read before the failure still counts
-                        yield self._finish(pending[0], *pending[1].result())
+                        yield self._finish(pending[0], *self._prepared(pending[1]))
                         pending = None
                     raise
                 job = None
                 if window is not None:
-                    job = (window, pool.submit(self._estimate_and_prepare, window, history.before(window)))
+                    job = (window, submit(window, history.before(window)))
                     history.add(window)
                 if pending is not None:
-                    yield self._finish(pending[0], *pending[1].result())
+                    yield self._finish(pending[0], *self._prepared(pending[1]))
                 if job is None:
                     return
                 pending = job
         finally:
-            # An abandoned or failed run: drop queued work; a flow in progress ends on its own.
-            pool.shutdown(wait=False, cancel_futures=True)
+            # An abandoned or failed run: drop queued work; a flow in progress ends on its own
+            # (the worker process stays for the next run, its result is never read).
+            for left in (pending, job):
+                if left is not None:
+                    left[1].cancel()
+            if self.config.worker != "process":
+                pool.shutdown(wait=False, cancel_futures=True)
+
+    def _prepared(self, future) -> tuple:
+        """The overlapped share of a window, from its worker; a worker process that died is
+        reported as such (and a new one starts with the next run)."""
+        from concurrent.futures.process import BrokenProcessPool
+
+        try:
+            return future.result()
+        except BrokenProcessPool as exc:
+            self.close()
+            raise EvsegError(f"the pipeline's worker process stopped unexpectedly ({exc}); "
+                             "run again, or use pipeline.worker: thread") from None
+
+    def _process_pool(self):
+        """The worker process (``worker="process"``), started on first use: a pipeline of its
+        own (same config, sensor, calibration) that estimates the flow and prepares windows."""
+        if self._worker_process is None:
+            import multiprocessing
+            import weakref
+            from concurrent.futures import ProcessPoolExecutor
+
+            # spawn, not fork: this process may already run onnxruntime's and torch's threads.
+            pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"),
+                                       initializer=_start_worker,
+                                       initargs=(self.config, self.sensor_size, self.calibration))
+            self._worker_process = pool
+            self._worker_finalizer = weakref.finalize(self, pool.shutdown, wait=True, cancel_futures=True)
+        return self._worker_process
+
+
+_WORKER_PIPELINE: MotionSegmentationPipeline | None = None  # in the worker process only
+
+
+def _start_worker(config: PipelineConfig, sensor_size: tuple[int, int], calibration: Calibration | None) -> None:
+    """Initializer of the worker process: its own pipeline; Ctrl-C is the parent's to handle
+    (the terminal sends it to both processes; the parent stops the worker)."""
+    import signal
+
+    global _WORKER_PIPELINE
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _WORKER_PIPELINE = MotionSegmentationPipeline(config, sensor_size=sensor_size, calibration=calibration)
+
+
+def _prepare_in_worker(window: Window, context: np.ndarray | None) -> tuple:
+    """One window's overlapped share in the worker process (see ``PipelineConfig.worker``)."""
+    return _WORKER_PIPELINE._estimate_and_prepare(window, context, sample=True)
 
 
 @dataclass

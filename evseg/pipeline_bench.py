@@ -10,10 +10,11 @@ pipeline object (reset between repeats), so set-up costs paid once per stream we
 the first repeat.
 
 ``total`` is the wall time per window as the stream goes through (time between results, plus
-the window's share of reading): with the pipeline's default ``overlap`` the next window's
-flow runs on a second thread meanwhile, so the stage figures add up to more than it. The
-1 M events/s stream is also timed with ``overlap`` off (one window after the other), where
-``total`` is also the time one window takes from its events to its labels.
+the window's share of reading): as ``evseg segment`` runs it, the next window's flow and
+preparation run meanwhile in a worker process (``PipelineConfig.overlap``, ``worker``), so
+the stage figures add up to more than it. The 1 M events/s stream is also timed with the
+worker on a thread of the same process, and with ``overlap`` off (one window after the
+other), where ``total`` is also the time one window takes from its events to its labels.
 """
 
 from __future__ import annotations
@@ -47,7 +48,7 @@ def simulated_stream(rate_ev_s: float, duration_us: int, seed: int = 1100):
 
 
 def time_pipeline(path: Path, repeats: int, flow: str = "learned", threads: int | None = None,
-                  overlap: bool = True) -> dict:
+                  overlap: bool = True, worker: str = "process") -> dict:
     """Per-stage median / p90 ms per window for one recording file."""
     per_stage: dict[str, list[float]] = {s: [] for s in STAGES}
     n_events = n_windows = 0
@@ -62,8 +63,8 @@ def time_pipeline(path: Path, repeats: int, flow: str = "learned", threads: int 
             # One pipeline for all repeats, as a live stream has: one-time set-up (the
             # encoder's per-pixel phase table, ~4 s and 236 MB for a 1280x720 sensor; numba
             # loading) is paid in the first repeat only, not in every window of every repeat.
-            pipe = MotionSegmentationPipeline(PipelineConfig(flow=flow, threads=threads, overlap=overlap),
-                                              sensor_size=sensor)
+            pipe = MotionSegmentationPipeline(PipelineConfig(flow=flow, threads=threads, overlap=overlap,
+                                                             worker=worker), sensor_size=sensor)
         pipe.reset()
         results = []
         it = pipe.run(chunks)
@@ -84,6 +85,8 @@ def time_pipeline(path: Path, repeats: int, flow: str = "learned", threads: int 
             tm["flow_network"] = tm.get("flow_network", float("nan"))
             for s in STAGES:
                 per_stage[s].append(tm.get(s, 0.0))
+    if pipe is not None:
+        pipe.close()
     window_ms = PipelineConfig().window_us / 1e3
     out = {"events/window": n_events / max(n_windows, 1), "windows": n_windows}
     for s in STAGES:
@@ -111,6 +114,9 @@ def benchmark(repeats: int = 3, quick: bool = False) -> list[dict]:
             row.update(time_pipeline(path, repeats))
             rows.append(row)
             if rate == 1e6:
+                row = {"input": f"simulated 346x260, {rec.stream.rate_ev_s / 1e6:.2f} M ev/s, overlap on a thread"}
+                row.update(time_pipeline(path, repeats, worker="thread"))
+                rows.append(row)
                 row = {"input": f"simulated 346x260, {rec.stream.rate_ev_s / 1e6:.2f} M ev/s, overlap off"}
                 row.update(time_pipeline(path, repeats, overlap=False))
                 rows.append(row)

@@ -36,6 +36,7 @@ class SegmentJob:
     model: Path | None = None
     threads: int | None = None
     overlap: bool = True
+    worker: str = "process"
     masks: bool = False
     video: Path | None = None
     frames: Path | None = None
@@ -60,6 +61,7 @@ def build_pipeline_config(job: SegmentJob):
         model_path=None if job.model is None else str(job.model),
         threads=job.threads,
         overlap=job.overlap,
+        worker=job.worker,
         segmentation=seg,
     )
 
@@ -151,7 +153,7 @@ def run_segment_job(job: SegmentJob) -> str:
         writer = ResultWriter(job.out, None, rec.sensor_size, config_yaml(cfg), with_masks=job.masks)
         span = rec.time_span_us()
         origin = span[0] if span is not None else None  # bar zero: first event, else first window
-        with _closing(writer, lambda: n_windows > 0), \
+        with pipe, _closing(writer, lambda: n_windows > 0), \
                 VideoSink(job.video, job.frames) as sink, \
                 tqdm(**_progress_bar_kwargs(span), disable=not job.progress) as bar:
             seen = [0]

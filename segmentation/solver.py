@@ -44,7 +44,7 @@ Order of the steps (our choice where the paper is silent):
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -242,6 +242,25 @@ def segment_normal_flow(
 
 
 @dataclass(frozen=True)
+class SampledCandidates:
+    """The window-local part of round 0 (module docstring, steps 2-3) for one candidate count:
+    ``n_asked`` translations by fast sampling, each LM-fitted to its voters.
+
+    Attributes:
+        n_asked: candidates asked of fast sampling (``n_sampled`` or ``n_sampled_with_prediction``).
+        models: (n', 4) fitted models, n' <= n_asked. data: (M, n') their data costs.
+        sampling_ms, fitting_ms: wall time of the sampling and of the fits, ms (reported under
+            'initialization' and 'labeling_fitting' like the rest of those stages).
+    """
+
+    n_asked: int
+    models: np.ndarray
+    data: np.ndarray
+    sampling_ms: float
+    fitting_ms: float
+
+
+@dataclass(frozen=True)
 class PreparedWindow:
     """What :func:`prepare_window` derives from one window's normal flow alone: the node graph
     and every per-node term of the energy (no motion model, nothing of the previous window).
@@ -256,6 +275,9 @@ class PreparedWindow:
         conf, node_scale: (M,) data-term weights and per-node residual scale factors (or None).
         fit_w: (M,) fitting weights. vote_x, vote_y, voting: fast-sampling votes (px/s) and
             which nodes vote. suspect: (M,) likely outliers. timings: ms of this step.
+        sampled: round 0's sampled candidates already computed (:func:`with_sampled_candidates`),
+            one entry per candidate count asked; :func:`segment_prepared` computes the count
+            it needs when it is not there.
     """
 
     config: SegmentationConfig
@@ -278,11 +300,61 @@ class PreparedWindow:
     voting: np.ndarray
     suspect: np.ndarray
     timings: dict
+    sampled: tuple[SampledCandidates, ...] = ()
 
     @property
     def max_propagation_px(self) -> float:
         """Label propagation's distance limit (px), grown with the node budget's cells."""
         return self.config.max_propagation_px * self.grown
+
+
+def _lm_kwargs(pw: PreparedWindow) -> dict:
+    """Keyword arguments of every LM fit of a window (robust loss, scale, weights)."""
+    cfg = pw.config
+    return dict(loss=cfg.robust_loss, loss_scale_px_s=cfg.robust_scale * pw.sigma,
+                truncation=cfg.truncation / cfg.robust_scale, iterations=cfg.lm_iterations,
+                damping=cfg.lm_damping, weights=pw.fit_w, affine_prior_px=cfg.affine_prior_px)
+
+
+def _costs(pw: PreparedWindow, models: np.ndarray) -> np.ndarray:
+    """(M, L) data costs of ``models`` at the window's nodes."""
+    g = pw.graph
+    return data_costs(models, pw.xr, pw.yr, g.nx, g.ny, pw.sigma, pw.config.truncation, pw.conf, pw.node_scale)
+
+
+def sample_candidates(prepared: PreparedWindow, n: int) -> SampledCandidates:
+    """Fast sampling of ``n`` candidates and their round-0 fits to their voters (steps 2-3 of
+    the module docstring). Needs nothing of the previous window: each candidate's fit sees only
+    its own voters, so the result does not depend on the predicted candidates beside it."""
+    pw = prepared
+    tic = time.perf_counter()
+    bin_px_s = pw.config.sampling_bin * pw.sigma
+    sampled = fast_sampling(pw.vote_x[pw.voting], pw.vote_y[pw.voting], n, bin_px_s,
+                            pw.config.min_candidate_separation * pw.sigma)
+    sampling_ms = (time.perf_counter() - tic) * 1e3
+    tic = time.perf_counter()
+    if len(pw.graph) == 0:
+        return SampledCandidates(n, np.empty((0, 4)), np.empty((0, 0)), sampling_ms, 0.0)
+    fit_on = _voters(pw.vote_x, pw.vote_y, pw.voting, sampled[:, 2:], bin_px_s, 0)
+    models, data = _refit(sampled, _costs(pw, sampled), fit_on, pw.xr, pw.yr, pw.graph, _lm_kwargs(pw),
+                          lambda mod: _costs(pw, mod), np.arange(len(pw.graph)), always=True)
+    return SampledCandidates(n, models, data, sampling_ms, (time.perf_counter() - tic) * 1e3)
+
+
+def with_sampled_candidates(prepared: PreparedWindow, counts: tuple[int, ...] | None = None) -> PreparedWindow:
+    """``prepared`` with round 0's sampled candidates computed for each count in ``counts``
+    (default: the config's ``n_sampled`` and ``n_sampled_with_prediction``).
+
+    Which count a window uses depends on whether the previous window's objects gave predicted
+    candidates, so a streaming caller preparing window t + 1 while window t is segmented computes
+    both; :func:`segment_prepared` then only picks one (same result as computing it there).
+    """
+    cfg = prepared.config
+    if counts is None:
+        counts = (cfg.n_sampled, cfg.n_sampled_with_prediction)
+    have = {c.n_asked for c in prepared.sampled}
+    extra = tuple(sample_candidates(prepared, int(n)) for n in dict.fromkeys(counts) if int(n) not in have)
+    return replace(prepared, sampled=prepared.sampled + extra)
 
 
 def prepare_window(
@@ -386,9 +458,7 @@ def segment_prepared(
     m = len(graph)
     timings = dict(pw.timings)
     tic, cpu = time.perf_counter(), time.process_time()
-    lm_kw = dict(loss=cfg.robust_loss, loss_scale_px_s=cfg.robust_scale * sigma,
-                 truncation=cfg.truncation / cfg.robust_scale, iterations=cfg.lm_iterations,
-                 damping=cfg.lm_damping, weights=fit_w, affine_prior_px=cfg.affine_prior_px)
+    lm_kw = _lm_kwargs(pw)
     predicted = np.empty((0, 4))
     n_object_candidates = 0
     # Objects to predict: the caller's tracks (boxes already at this window) or the previous
@@ -413,14 +483,21 @@ def segment_prepared(
         # The previous background model is a free, usually excellent candidate.
         predicted = np.concatenate([previous.models[:1], predicted])
     n_sample = cfg.n_sampled_with_prediction if n_object_candidates else cfg.n_sampled
-    bin_px_s = cfg.sampling_bin * sigma
-    sampled = fast_sampling(vote_x[voting], vote_y[voting], n_sample, bin_px_s,
-                            cfg.min_candidate_separation * sigma)
-    models = np.concatenate([predicted, sampled]) if m else np.empty((0, 4))
+    # Round 0's sampled candidates (fast sampling and the fit to their voters) need no earlier
+    # window: a streaming caller may have computed them already (with_sampled_candidates).
+    ready = [c for c in pw.sampled if c.n_asked == n_sample]
+    sampled = ready[0] if ready else sample_candidates(pw, n_sample)
+    models = np.concatenate([predicted, sampled.models]) if m else np.empty((0, 4))
     n_candidates = len(models)
     # The prepared share (1-ring noise, votes) and the model-dependent share (prediction, sampling).
     timings["initialization"] += (time.perf_counter() - tic) * 1e3
     timings["initialization_cpu"] += (time.process_time() - cpu) * 1e3
+    if ready:  # sampled on another thread: its time still counts in this window's stages
+        timings["initialization"] += sampled.sampling_ms
+        timings["initialization_cpu"] += sampled.sampling_ms
+    else:  # sampled and fitted just now: the fits count under labeling and fitting below
+        timings["initialization"] -= sampled.fitting_ms
+        timings["initialization_cpu"] -= sampled.fitting_ms
 
     tic, cpu = time.perf_counter(), time.process_time()
     labels = np.zeros(m, dtype=np.int64)
@@ -428,18 +505,16 @@ def segment_prepared(
     e_final = 0.0
     if m and len(models):
         def costs(mod):
-            return data_costs(mod, xr, yr, graph.nx, graph.ny, sigma, cfg.truncation, conf, node_scale)
+            return _costs(pw, mod)
 
         ar = np.arange(m)
         # Label costs: a candidate predicted from a tracked object pays tracked_label_cost x
         # lambda_m (it existed a window ago, so a new motion is less of a surprise).
         h = np.full(len(models), lambda_m)
         h[len(predicted) - n_object_candidates : len(predicted)] *= cfg.tracked_label_cost
-        # Round 0 (see module docstring): fit each sampled candidate to the nodes that voted
-        # for it, then label greedily.
-        data = costs(models)
-        fit_on = _voters(vote_x, vote_y, voting, sampled[:, 2:], bin_px_s, len(predicted))
-        models, data = _refit(models, data, fit_on, xr, yr, graph, lm_kw, costs, ar, always=True)
+        # Round 0 (see module docstring): each sampled candidate fitted to the nodes that voted
+        # for it (sample_candidates), then every node takes its cheapest candidate.
+        data = np.concatenate([costs(predicted), sampled.data], axis=1)
         labels = np.argmin(data, axis=1)
         models, data, labels, h = _merge_duplicates(models, data, labels, h, cfg.merge_tol * sigma,
                                                     radius, graph.edges, edge_w)
@@ -494,8 +569,9 @@ def segment_prepared(
             remap = np.full(len(models), -1, dtype=np.int64)
             remap[keep] = np.arange(len(keep))
             labels, models = remap[labels], models[keep]
-    timings["labeling_fitting"] = (time.perf_counter() - tic) * 1e3
-    timings["labeling_fitting_cpu"] = (time.process_time() - cpu) * 1e3
+    # Round 0's fits of the sampled candidates count here wherever they ran.
+    timings["labeling_fitting"] = (time.perf_counter() - tic) * 1e3 + sampled.fitting_ms
+    timings["labeling_fitting_cpu"] = (time.process_time() - cpu) * 1e3 + sampled.fitting_ms
 
     tic, cpu = time.perf_counter(), time.process_time()
     if sensor_size is not None and len(models) > 1:

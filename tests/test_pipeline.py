@@ -226,13 +226,13 @@ def short_stream():
     return simulate(load_scene_preset("eed_like"), seed=1002, duration_us=50_000).stream
 
 
-@pytest.mark.parametrize("flow", ["learned", "planefit"])
-def test_overlapped_flow_gives_the_sequential_results(short_stream, flow):
+@pytest.mark.parametrize("flow, worker", [("learned", "thread"), ("planefit", "thread"), ("learned", "process")])
+def test_overlapped_flow_gives_the_sequential_results(short_stream, flow, worker):
     runs = {}
     for overlap in (False, True):
-        pipe = MotionSegmentationPipeline(PipelineConfig(flow=flow, overlap=overlap, threads=1),
-                                          sensor_size=short_stream.sensor_size)
-        runs[overlap] = list(pipe.run(short_stream))
+        with MotionSegmentationPipeline(PipelineConfig(flow=flow, overlap=overlap, threads=1, worker=worker),
+                                        sensor_size=short_stream.sensor_size) as pipe:
+            runs[overlap] = list(pipe.run(short_stream))
     assert len(runs[True]) == len(runs[False]) == 5
     for a, b in zip(runs[False], runs[True]):
         np.testing.assert_array_equal(a.labels, b.labels)
@@ -241,21 +241,64 @@ def test_overlapped_flow_gives_the_sequential_results(short_stream, flow):
         assert b.timings_ms["flow"] > 0
 
 
+def test_the_worker_process_is_kept_between_runs_and_stopped_by_close(short_stream):
+    import multiprocessing
+
+    pipe = MotionSegmentationPipeline(PipelineConfig(flow="planefit", worker="process"),
+                                      sensor_size=short_stream.sensor_size)
+    assert pipe._worker_process is None  # started by the first overlapped run, not before
+    first = [r.labels for r in pipe.run(short_stream)]
+    workers = multiprocessing.active_children()
+    assert len(workers) == 1
+    pipe.reset()
+    again = [r.labels for r in pipe.run(short_stream)]
+    assert multiprocessing.active_children() == workers  # the same process served the second run
+    for a, b in zip(first, again):
+        np.testing.assert_array_equal(a, b)
+    pipe.close()
+    assert multiprocessing.active_children() == []
+
+
+def test_a_worker_process_that_dies_is_a_clear_error_and_the_next_run_starts_a_new_one(short_stream):
+    import os
+    import signal
+
+    from evseg.errors import EvsegError
+
+    with MotionSegmentationPipeline(PipelineConfig(flow="planefit", worker="process"),
+                                    sensor_size=short_stream.sensor_size) as pipe:
+        done = []
+        with pytest.raises(EvsegError, match="worker process stopped unexpectedly"):
+            for res in pipe.run(short_stream):
+                done.append(res.index)
+                if res.index == 1:
+                    for pid in list(pipe._worker_process._processes):
+                        os.kill(pid, signal.SIGKILL)
+        assert done[:2] == [0, 1] and len(done) < 5
+        pipe.reset()
+        assert [r.index for r in pipe.run(short_stream)] == [0, 1, 2, 3, 4]
+
+
+def test_unknown_worker_is_a_config_error():
+    with pytest.raises(ConfigError, match="pipeline.worker must be one of thread, process, got 'gpu'"):
+        PipelineConfig(worker="gpu")
+
+
 def _failing_chunks(events, n_ok):
     yield events[:n_ok]
     raise OSError("disk gone")
 
 
-@pytest.mark.parametrize("overlap", [False, True])
-def test_a_read_error_surfaces_after_the_windows_read_before_it(short_stream, overlap):
+@pytest.mark.parametrize("overlap, worker", [(False, "thread"), (True, "thread"), (True, "process")])
+def test_a_read_error_surfaces_after_the_windows_read_before_it(short_stream, overlap, worker):
     ev = short_stream.events
     n_ok = int(np.searchsorted(ev["t"], ev["t"][0] + 25_000))  # windows 0, 1 complete, 2 partial
-    pipe = MotionSegmentationPipeline(PipelineConfig(flow="planefit", overlap=overlap),
-                                      sensor_size=short_stream.sensor_size)
     done = []
-    with pytest.raises(OSError, match="disk gone"):
-        for res in pipe.run(_failing_chunks(ev, n_ok)):
-            done.append(res.index)
+    with MotionSegmentationPipeline(PipelineConfig(flow="planefit", overlap=overlap, worker=worker),
+                                    sensor_size=short_stream.sensor_size) as pipe:
+        with pytest.raises(OSError, match="disk gone"):
+            for res in pipe.run(_failing_chunks(ev, n_ok)):
+                done.append(res.index)
     assert done == [0, 1]
 
 

@@ -329,3 +329,34 @@ def test_prepared_window_segments_exactly_like_the_one_call():
         np.testing.assert_array_equal(one.models, two.models)
         assert one.boxes == two.boxes and one.n_objects == two.n_objects >= 2
     assert two.n_predicted >= 2  # the previous window's objects were predicted
+
+
+def test_precomputed_sampled_candidates_segment_exactly_like_computing_them(monkeypatch):
+    """with_sampled_candidates (what the pipeline's worker process adds to a prepared window)
+    holds round 0's candidates for both counts; segment_prepared takes the one it needs instead
+    of sampling and fitting again, with the same result, with (6 sampled) and without (12)
+    predicted objects."""
+    import evseg.segmentation.solver as solver
+    from evseg.segmentation import prepare_window, segment_prepared
+    from evseg.segmentation.solver import with_sampled_candidates
+
+    s = synthetic_scene(n_flows=2000, n_objects=2, seed=5)
+    cfg = SegmentationConfig()
+    assert (cfg.n_sampled, cfg.n_sampled_with_prediction) == (12, 6)
+    first = segment_normal_flow(s.x, s.y, s.t, s.nx, s.ny, config=cfg, sensor_size=s.sensor_size)
+    prepared = prepare_window(s.x, s.y, s.t + 10_000, s.nx, s.ny, config=cfg, sensor_size=s.sensor_size)
+    ready = with_sampled_candidates(prepared)
+    assert sorted(c.n_asked for c in ready.sampled) == [6, 12] and prepared.sampled == ()
+    assert all(c.data.shape == (len(prepared.graph), len(c.models)) for c in ready.sampled)
+    expected = {prev is None: segment_prepared(prepared, previous=prev) for prev in (None, first)}
+
+    def no_sampling(*args, **kwargs):
+        raise AssertionError("sampled again")
+
+    monkeypatch.setattr(solver, "sample_candidates", no_sampling)
+    for prev in (None, first):
+        got = segment_prepared(ready, previous=prev)
+        want = expected[prev is None]
+        np.testing.assert_array_equal(got.node_labels, want.node_labels)
+        np.testing.assert_array_equal(got.models, want.models)
+        assert got.boxes == want.boxes and got.n_candidates == want.n_candidates
