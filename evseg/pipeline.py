@@ -27,6 +27,7 @@ Example::
 
 from __future__ import annotations
 
+import itertools
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -87,7 +88,8 @@ class PipelineConfig:
             until :meth:`MotionSegmentationPipeline.close`). Python runs one thread's code at a
             time, so the thread and the segmentation take turns in their Python parts; the
             child process runs truly beside it and also fits round 0's sampled candidates
-            (:func:`evseg.segmentation.solver.with_sampled_candidates`) for the segmentation.
+            (:func:`evseg.segmentation.solver.with_sampled_candidates`; for the candidate count
+            the current tracks make likely) for the segmentation.
             Same results either way. The process costs ~1.5 s to start and a second copy of
             the model and libraries in memory (~0.3 GB), so it pays off on recordings, not on
             a few windows; ``evseg segment`` and ``evseg bench pipeline`` use it.
@@ -235,6 +237,7 @@ class MotionSegmentationPipeline:
         # A caller's flow_fn may not expect to run on another thread: only built-in estimators overlap.
         self._overlap = bool(self.config.overlap) and flow_fn is None and self._flow_fn is not None
         self._worker_process = None  # the "process" worker's pool, started by the first run
+        self._waited_s = 0.0  # how long the segmentation waits for the worker (running mean, s)
         self._worker_finalizer = None
         self.reset()
 
@@ -316,17 +319,28 @@ class MotionSegmentationPipeline:
         """Everything after the normal flow (steps 2-5 of the module docstring)."""
         return self._finish(window, *self._prepare(window, flow, timings))
 
-    def _estimate_and_prepare(self, window: Window, context: np.ndarray | None, sample: bool = False) -> tuple:
-        """The overlap worker's share of a window: its normal flow and :meth:`_prepare`; with
-        ``sample``, also round 0's sampled candidates for both candidate counts (which one the
-        window uses depends on the previous window's objects, not known yet)."""
+    def _estimate_and_prepare(self, window: Window, context: np.ndarray | None,
+                              sample_counts: tuple[int, ...] = ()) -> tuple:
+        """The overlap worker's share of a window: its normal flow, :meth:`_prepare` and round
+        0's sampled candidates for each of ``sample_counts``."""
         flow, timings = self._estimate_flow(window.events, context)
         prepared, *rest = self._prepare(window, flow, timings)
-        if sample:
+        if sample_counts:
             from evseg.segmentation.solver import with_sampled_candidates
 
-            prepared = with_sampled_candidates(prepared)
+            prepared = with_sampled_candidates(prepared, sample_counts)
         return (prepared, *rest)
+
+    def _worker_sample_counts(self) -> tuple[int, ...]:
+        """Round 0's candidate counts the worker process should sample and fit for the next
+        window: none when the segmentation had to wait for the worker last time (the worker is
+        the slower of the two on average, e.g. the flow of a large sensor), else the count the current
+        tracks make likely (fewer when objects are tracked: they give predicted candidates). A
+        count not prepared costs the segmentation one sampling, never a different result."""
+        if self._waited_s > 2e-3:
+            return ()
+        seg = self.config.segmentation
+        return (seg.n_sampled_with_prediction if self._tracker.tracks else seg.n_sampled,)
 
     def _prepare(self, window: Window, flow: NormalFlowLike, timings: dict[str, float]) -> tuple:
         """Flow positions (undistorted), the window's event positions and the segmentation's
@@ -455,7 +469,14 @@ class MotionSegmentationPipeline:
 
         if self.config.worker == "process":
             pool = self._process_pool()
-            submit = lambda window, context: pool.submit(_prepare_in_worker, window, context)  # noqa: E731
+            # The worker keeps its own copy of the recent events (the flow's context): each
+            # window's events cross to it once. Window t + 1 is submitted before window t is
+            # segmented: the tracks guess its candidate count.
+            run_id = next(_RUN_IDS)
+            history = EventHistory(0)  # not needed here
+            self._waited_s = 0.0
+            submit = lambda window, context: pool.submit(  # noqa: E731
+                _prepare_in_worker, window, run_id, self._worker_sample_counts())
         else:
             pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="evseg-flow")
             submit = lambda window, context: pool.submit(self._estimate_and_prepare, window, context)  # noqa: E731
@@ -474,7 +495,8 @@ class MotionSegmentationPipeline:
                     job = (window, submit(window, history.before(window)))
                     history.add(window)
                 if pending is not None:
-                    yield self._finish(pending[0], *self._prepared(pending[1]))
+                    # Window 0 waits for its flow whatever the speeds: not counted.
+                    yield self._finish(pending[0], *self._prepared(pending[1], count_wait=pending[0].index > 0))
                 if job is None:
                     return
                 pending = job
@@ -487,17 +509,21 @@ class MotionSegmentationPipeline:
             if self.config.worker != "process":
                 pool.shutdown(wait=False, cancel_futures=True)
 
-    def _prepared(self, future) -> tuple:
+    def _prepared(self, future, count_wait: bool = False) -> tuple:
         """The overlapped share of a window, from its worker; a worker process that died is
         reported as such (and a new one starts with the next run)."""
         from concurrent.futures.process import BrokenProcessPool
 
+        tic = time.perf_counter()
         try:
             return future.result()
         except BrokenProcessPool as exc:
             self.close()
             raise EvsegError(f"the pipeline's worker process stopped unexpectedly ({exc}); "
                              "run again, or use pipeline.worker: thread") from None
+        finally:
+            if count_wait:
+                self._waited_s = 0.7 * self._waited_s + 0.3 * (time.perf_counter() - tic)
 
     def _process_pool(self):
         """The worker process (``worker="process"``), started on first use: a pipeline of its
@@ -517,6 +543,8 @@ class MotionSegmentationPipeline:
 
 
 _WORKER_PIPELINE: MotionSegmentationPipeline | None = None  # in the worker process only
+_WORKER_HISTORY: tuple[int, EventHistory] | None = None  # (run id, recent events) in the worker
+_RUN_IDS = itertools.count()
 
 
 def _start_worker(config: PipelineConfig, sensor_size: tuple[int, int], calibration: Calibration | None) -> None:
@@ -529,9 +557,17 @@ def _start_worker(config: PipelineConfig, sensor_size: tuple[int, int], calibrat
     _WORKER_PIPELINE = MotionSegmentationPipeline(config, sensor_size=sensor_size, calibration=calibration)
 
 
-def _prepare_in_worker(window: Window, context: np.ndarray | None) -> tuple:
-    """One window's overlapped share in the worker process (see ``PipelineConfig.worker``)."""
-    return _WORKER_PIPELINE._estimate_and_prepare(window, context, sample=True)
+def _prepare_in_worker(window: Window, run_id: int, sample_counts: tuple[int, ...]) -> tuple:
+    """One window's overlapped share in the worker process (see ``PipelineConfig.worker``).
+    The windows of a run arrive in order; the worker keeps the events before each one (the
+    flow's context) itself, as :meth:`MotionSegmentationPipeline.run` does."""
+    global _WORKER_HISTORY
+    if _WORKER_HISTORY is None or _WORKER_HISTORY[0] != run_id:
+        _WORKER_HISTORY = (run_id, EventHistory(int(_WORKER_PIPELINE.config.flow_context_us)))
+    history = _WORKER_HISTORY[1]
+    context = history.before(window)
+    history.add(window)
+    return _WORKER_PIPELINE._estimate_and_prepare(window, context, sample_counts)
 
 
 @dataclass

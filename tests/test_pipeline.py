@@ -226,14 +226,17 @@ def short_stream():
     return simulate(load_scene_preset("eed_like"), seed=1002, duration_us=50_000).stream
 
 
-@pytest.mark.parametrize("flow, worker", [("learned", "thread"), ("planefit", "thread"), ("learned", "process")])
-def test_overlapped_flow_gives_the_sequential_results(short_stream, flow, worker):
+@pytest.mark.parametrize("flow, worker, stride_us", [("learned", "thread", None), ("planefit", "thread", None),
+                                                     ("learned", "process", None), ("learned", "process", 5_000)])
+def test_overlapped_flow_gives_the_sequential_results(short_stream, flow, worker, stride_us):
+    """Same labels and flows with the next window prepared on a thread or in the worker process
+    (which keeps its own copy of the flow's context events, also with overlapping windows)."""
     runs = {}
     for overlap in (False, True):
-        with MotionSegmentationPipeline(PipelineConfig(flow=flow, overlap=overlap, threads=1, worker=worker),
-                                        sensor_size=short_stream.sensor_size) as pipe:
+        cfg = PipelineConfig(flow=flow, overlap=overlap, threads=1, worker=worker, stride_us=stride_us)
+        with MotionSegmentationPipeline(cfg, sensor_size=short_stream.sensor_size) as pipe:
             runs[overlap] = list(pipe.run(short_stream))
-    assert len(runs[True]) == len(runs[False]) == 5
+    assert len(runs[True]) == len(runs[False]) == (5 if stride_us is None else 10)
     for a, b in zip(runs[False], runs[True]):
         np.testing.assert_array_equal(a.labels, b.labels)
         np.testing.assert_array_equal(a.flow, b.flow)
