@@ -116,7 +116,8 @@ def measure_segment(recording: Path, out: Path, flow_method: str = "planefit") -
         raise RuntimeError(f"evseg segment failed ({proc.returncode}): {err.strip()}")
     # The kernel's peak of the main process, or the sampled peak of the process tree (the
     # segment command's worker process included) when that is higher.
-    return {"wall_s": wall, "peak_kb": max(int(usage.ru_maxrss), max(samples, default=0)), "samples_kb": samples}
+    peak_kb = max(int(usage.ru_maxrss), max(samples, default=0))
+    return {"wall_s": wall, "peak_kb": peak_kb, "samples_kb": samples}
 
 
 def _row(flow_method: str, duration_s: int, n_events: int, file_mb: float, m: dict) -> dict:

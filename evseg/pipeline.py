@@ -77,8 +77,9 @@ class PipelineConfig:
             flow and prepare its node graph on a second thread while this one is segmented
             (built-in estimators only; the estimator then uses ``threads`` or, when None, one
             thread, leaving the other core to the segmentation). Same results; on the 2-core
-            development machine ~38 -> ~30 ms per window at 1 M events/s (``evseg bench
-            pipeline``). The next window is read
+            development machine 42.5 -> 36.5 ms per window at 1 M events/s with
+            ``worker="thread"``, 26.9 ms with ``worker="process"`` (``evseg bench pipeline``).
+            The next window is read
             before this one is segmented: from a file that costs nothing, from a live source
             that the pipeline keeps up with it holds each result until the next window has
             arrived (one window, 10 ms, later), so set False there for the lowest latency.
@@ -115,7 +116,8 @@ class PipelineConfig:
         if self.stride_us is not None and int(self.stride_us) <= 0:
             raise ConfigError(f"pipeline.stride_us must be positive, got {self.stride_us}")
         if self.worker not in WORKERS:
-            raise ConfigError(f"pipeline.worker must be one of {', '.join(WORKERS)}, got {self.worker!r}")
+            raise ConfigError(
+                f"pipeline.worker must be one of {', '.join(WORKERS)}, got {self.worker!r}")
         ctx = self.flow_context_us
         if not (isinstance(ctx, (int, np.integer)) or (isinstance(ctx, float) and ctx.is_integer())) or ctx < 0:
             raise ConfigError(f"pipeline.flow_context_us must be a non-negative integer (us), got {ctx!r}")
@@ -334,8 +336,8 @@ class MotionSegmentationPipeline:
     def _worker_sample_counts(self) -> tuple[int, ...]:
         """Round 0's candidate counts the worker process should sample and fit for the next
         window: none when the segmentation had to wait for the worker last time (the worker is
-        the slower of the two on average, e.g. the flow of a large sensor), else the count the current
-        tracks make likely (fewer when objects are tracked: they give predicted candidates). A
+        the slower of the two on average, e.g. the flow of a large sensor), else the count the
+        current tracks make likely (fewer when objects are tracked: they give predicted candidates). A
         count not prepared costs the segmentation one sampling, never a different result."""
         if self._waited_s > 2e-3:
             return ()
@@ -479,7 +481,8 @@ class MotionSegmentationPipeline:
                 _prepare_in_worker, window, run_id, self._worker_sample_counts())
         else:
             pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="evseg-flow")
-            submit = lambda window, context: pool.submit(self._estimate_and_prepare, window, context)  # noqa: E731
+            submit = lambda window, context: pool.submit(  # noqa: E731
+                self._estimate_and_prepare, window, context)
         pending = job = None  # (window, future of what _finish needs)
         try:
             while True:
@@ -496,7 +499,8 @@ class MotionSegmentationPipeline:
                     history.add(window)
                 if pending is not None:
                     # Window 0 waits for its flow whatever the speeds: not counted.
-                    yield self._finish(pending[0], *self._prepared(pending[1], count_wait=pending[0].index > 0))
+                    ready = self._prepared(pending[1], count_wait=pending[0].index > 0)
+                    yield self._finish(pending[0], *ready)
                 if job is None:
                     return
                 pending = job
@@ -534,11 +538,12 @@ class MotionSegmentationPipeline:
             from concurrent.futures import ProcessPoolExecutor
 
             # spawn, not fork: this process may already run onnxruntime's and torch's threads.
-            pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"),
-                                       initializer=_start_worker,
-                                       initargs=(self.config, self.sensor_size, self.calibration))
+            pool = ProcessPoolExecutor(
+                max_workers=1, mp_context=multiprocessing.get_context("spawn"), initializer=_start_worker,
+                initargs=(self.config, self.sensor_size, self.calibration))
             self._worker_process = pool
-            self._worker_finalizer = weakref.finalize(self, pool.shutdown, wait=True, cancel_futures=True)
+            self._worker_finalizer = weakref.finalize(self, pool.shutdown, wait=True,
+                                                      cancel_futures=True)
         return self._worker_process
 
 
@@ -547,14 +552,16 @@ _WORKER_HISTORY: tuple[int, EventHistory] | None = None  # (run id, recent event
 _RUN_IDS = itertools.count()
 
 
-def _start_worker(config: PipelineConfig, sensor_size: tuple[int, int], calibration: Calibration | None) -> None:
+def _start_worker(config: PipelineConfig, sensor_size: tuple[int, int],
+                  calibration: Calibration | None) -> None:
     """Initializer of the worker process: its own pipeline; Ctrl-C is the parent's to handle
     (the terminal sends it to both processes; the parent stops the worker)."""
     import signal
 
     global _WORKER_PIPELINE
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    _WORKER_PIPELINE = MotionSegmentationPipeline(config, sensor_size=sensor_size, calibration=calibration)
+    _WORKER_PIPELINE = MotionSegmentationPipeline(config, sensor_size=sensor_size,
+                                                  calibration=calibration)
 
 
 def _prepare_in_worker(window: Window, run_id: int, sample_counts: tuple[int, ...]) -> tuple:

@@ -88,11 +88,11 @@ def test_precomputed_mode_needs_flow():
     assert list(pipe.run(EventStream(ev, (10, 10)))) == []
 
 
-def _calibration(distortion):
+def _calibration(distortion, size=(346, 260)):
     from evseg.calibration import Calibration
 
-    K = np.array([[200.0, 0, 173.0], [0, 200.0, 130.0], [0, 0, 1]])
-    return Calibration(K, np.asarray(distortion, dtype=float), (346, 260))
+    K = np.array([[200.0, 0, size[0] / 2], [0, 200.0, size[1] / 2], [0, 0, 1]])
+    return Calibration(K, np.asarray(distortion, dtype=float), size)
 
 
 def test_undistorted_normal_flow_follows_the_jacobian():
@@ -141,6 +141,21 @@ def test_calibrated_pipeline_labels_every_window(sim):
     results = list(pipe.run(rec.stream, precomputed_flow=flow))
     assert sum(len(r.labels) for r in results) == len(rec.stream)
     assert all((r.labels >= 0).mean() > 0.5 for r in results)  # most events near a node
+
+
+def test_calibrated_pipeline_undistorts_alike_in_the_worker_process(short_stream):
+    """The worker process gets the calibration: same labels and flows as sequentially."""
+    runs = []
+    for overlap in (False, True):
+        cfg = PipelineConfig(flow="planefit", overlap=overlap, worker="process")
+        calibration = _calibration([-0.05, 0.0, 0.0, 0.0], short_stream.sensor_size)
+        with MotionSegmentationPipeline(cfg, sensor_size=short_stream.sensor_size,
+                                        calibration=calibration) as pipe:
+            runs.append(list(pipe.run(short_stream)))
+    assert len(runs[0]) == len(runs[1]) == 5
+    for a, b in zip(*runs):
+        np.testing.assert_array_equal(a.labels, b.labels)
+        np.testing.assert_array_equal(a.flow, b.flow)
 
 
 def test_learned_pipeline_flow_equals_the_flow_command_with_context(sim, tmp_path):
