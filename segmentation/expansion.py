@@ -98,7 +98,9 @@ def _cut(labels: np.ndarray, alpha: int, terms: tuple, label_costs: np.ndarray) 
     # The largest stars are enumerated (module docstring), the rest built.
     enumerated = others[np.argsort(-count[others], kind="stable")][:MAX_ENUMERATED_STARS]
     enumerated = np.sort(enumerated[count[enumerated] >= ENUMERATED_STAR_MIN_NODES])
-    stars = np.setdiff1d(others, enumerated)
+    enumerated_mask = np.zeros(n_labels, dtype=bool)  # not setdiff1d: ~60 us per move on ~10 labels
+    enumerated_mask[enumerated] = True
+    stars = others[~enumerated_mask[others]]
 
     g = maxflow.Graph[float](m + len(stars) + 8, len(pair_i) + m)
     nodes = g.add_nodes(m)
