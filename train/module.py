@@ -25,6 +25,9 @@ from evseg.veckm_flow.model import FlowHead
 from evseg.veckm_flow import losses as L
 
 
+UNCERTAINTY_TARGETS = ("angle", "relative_error")
+
+
 class NormalFlowModule(pl.LightningModule):
     """Train a :class:`~evseg.veckm_flow.FlowHead` on precomputed encoder features.
 
@@ -42,6 +45,11 @@ class NormalFlowModule(pl.LightningModule):
             weights normalised to mean 1, capped at 10): fast edges are ~1 % of the targets
             (a small fast object), and without weighting the head shrinks their magnitude
             towards the common speeds.
+        uncertainty_target: what the uncertainty output predicts where GT normal flow is
+            known: ``"angle"`` (the angular error, rad; the shipped model) or
+            ``"relative_error"`` (|p - n| / |n|, dimensionless: the angular error and the
+            magnitude error together, which is what the segmentation's residual scale
+            |n| * uncertainty stands for).
     """
 
     def __init__(
@@ -53,6 +61,7 @@ class NormalFlowModule(pl.LightningModule):
         uncertainty_weight: float = 0.1,
         optical_flow_weight: float = 1.0,
         magnitude_balance: float = 0.0,
+        uncertainty_target: str = "angle",
     ):
         super().__init__()
         encoding = EncodingConfig.from_dict(dict(encoding or {})).to_dict()
@@ -61,7 +70,11 @@ class NormalFlowModule(pl.LightningModule):
                                    "weight_decay": weight_decay,
                                    "uncertainty_weight": uncertainty_weight,
                                    "optical_flow_weight": optical_flow_weight,
-                                   "magnitude_balance": float(magnitude_balance)})
+                                   "magnitude_balance": float(magnitude_balance),
+                                   "uncertainty_target": uncertainty_target})
+        if uncertainty_target not in UNCERTAINTY_TARGETS:
+            raise ValueError(f"model.uncertainty_target must be one of {', '.join(UNCERTAINTY_TARGETS)}, "
+                             f"got {uncertainty_target!r}")
         self.encoding_config = EncodingConfig.from_dict(encoding)
         self.head = FlowHead(in_features=self.encoding_config.n_features, **head)
         self.flow_unit_px_s = float(self.encoding_config.flow_unit_px_s)
@@ -93,7 +106,12 @@ class NormalFlowModule(pl.LightningModule):
             if balance > 0:
                 per_target = per_target * L.magnitude_weights(nf[has_nf], balance)
             parts["nf"] = per_target.mean()
-            err = torch.where(has_nf, ae, err)
+            if self.hparams.get("uncertainty_target", "angle") == "relative_error":
+                gt = torch.nan_to_num(nf)
+                rel = (pred - gt).norm(dim=1) / gt.norm(dim=1).clamp_min(1e-6)
+                err = torch.where(has_nf, rel, err)
+            else:
+                err = torch.where(has_nf, ae, err)
         if has_of.any():
             parts["of"] = L.veckm_optical_flow_loss(pred[has_of], of[has_of]).mean()
             err = torch.where(has_of, L.optical_flow_error(pred, torch.nan_to_num(of)), err)

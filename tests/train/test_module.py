@@ -82,3 +82,27 @@ def test_magnitude_weights_favour_rare_speeds():
     assert torch.allclose(magnitude_weights(torch.ones(5, 2), 1.0), torch.ones(5))  # one speed
     m = NormalFlowModule(magnitude_balance=0.5)
     assert m.hparams.magnitude_balance == 0.5 and torch.isfinite(m._losses(_batch())["loss"])
+
+
+def test_uncertainty_target_chooses_the_error_the_uncertainty_learns():
+    """'angle': the angular error (rad); 'relative_error': |p - n| / |n|. The NLL is
+    err * exp(-log u) + log u with that error, row by row."""
+    import pytest
+
+    from evseg.veckm_flow import losses as L
+
+    batch = _batch(16)
+    for target in ("angle", "relative_error"):
+        torch.manual_seed(0)
+        m = NormalFlowModule(head={"hidden": 16, "layers": 1}, uncertainty_target=target)
+        out = m(batch["features"])
+        pred, log_u = out[:, :2], out[:, 2]
+        gt = batch["normal_flow"] / m.flow_unit_px_s
+        if target == "angle":
+            err = L.angular_error(pred, gt)
+        else:
+            err = (pred - gt).norm(dim=1) / gt.norm(dim=1)
+        torch.testing.assert_close(m._losses(batch)["nll"], (err * torch.exp(-log_u) + log_u).mean())
+        assert m.hparams.uncertainty_target == target
+    with pytest.raises(ValueError, match="uncertainty_target must be one of angle, relative_error"):
+        NormalFlowModule(uncertainty_target="epe")
