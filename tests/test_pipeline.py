@@ -254,7 +254,13 @@ def test_overlapped_flow_gives_the_sequential_results(short_stream, flow, worker
     assert len(runs[True]) == len(runs[False]) == (5 if stride_us is None else 10)
     for a, b in zip(runs[False], runs[True]):
         np.testing.assert_array_equal(a.labels, b.labels)
-        np.testing.assert_array_equal(a.flow, b.flow)
+        if worker == "thread":
+            np.testing.assert_array_equal(a.flow, b.flow)
+        else:
+            # The encoder's numba kernels as compiled in this process and as loaded from numba's
+            # cache by the worker can round float32 sums differently (seen right after a fresh
+            # install: features ~1e-5 apart, flows ~1e-3 px/s); same labels.
+            np.testing.assert_allclose(a.flow, b.flow, rtol=1e-4, atol=1e-2)
         assert a.boxes == b.boxes and a.t0_us == b.t0_us
         assert b.timings_ms["flow"] > 0
 
