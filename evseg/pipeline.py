@@ -13,9 +13,10 @@ Per window (default 10 ms, back to back):
 
 As in the paper's system, whose pre-processing and segmentation are two independently running
 modules, :meth:`MotionSegmentationPipeline.run` estimates the next window's normal flow and
-prepares its node graph (:func:`evseg.segmentation.prepare_window`) on a second thread while
-the current window is segmented (``PipelineConfig.overlap``): neither depends on the
-segmentation, so the results are identical and a stream goes through faster on two cores.
+prepares its node graph (:func:`evseg.segmentation.prepare_window`) on a second thread, or in
+a second process, while the current window is segmented (``PipelineConfig.overlap`` and
+``worker``): neither depends on the segmentation, so the results are identical and a stream
+goes through faster on two cores.
 
 Example::
 
@@ -140,7 +141,7 @@ class WindowResult:
         segmentation: the raw :class:`evseg.segmentation` result (labels 1..K, models).
         timings_ms: stage -> milliseconds ('flow', 'preprocessing', ...; with ``overlap`` the
             flow, the pre-processing and the window-local share of 'initialization' ran on the
-            other thread while the previous window was segmented).
+            worker thread or process while the previous window was segmented).
     """
 
     index: int
@@ -339,8 +340,9 @@ class MotionSegmentationPipeline:
         """Round 0's candidate counts the worker process should sample and fit for the next
         window: none when the segmentation had to wait for the worker last time (the worker is
         the slower of the two on average, e.g. the flow of a large sensor), else the count the
-        current tracks make likely (fewer when objects are tracked: they give predicted candidates). A
-        count not prepared costs the segmentation one sampling, never a different result."""
+        current tracks make likely (fewer when objects are tracked: they give predicted
+        candidates). A count not prepared costs the segmentation one sampling, never a
+        different result."""
         if self._waited_s > 2e-3:
             return ()
         seg = self.config.segmentation
@@ -466,8 +468,8 @@ class MotionSegmentationPipeline:
             yield result
 
     def _run_overlapped(self, windows: Iterator[Window], history: EventHistory) -> Iterator[WindowResult]:
-        """:meth:`run` with the flow of window t + 1 estimated on a worker thread while window
-        t is segmented. Results, and the order in which errors surface, are those of the
+        """:meth:`run` with the flow of window t + 1 estimated by the worker (thread or process)
+        while window t is segmented. Results, and the order in which errors surface, are those of the
         sequential loop: a window whose successor cannot be read is still yielded first."""
         from concurrent.futures import ThreadPoolExecutor
 

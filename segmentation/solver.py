@@ -335,7 +335,7 @@ def sample_candidates(prepared: PreparedWindow, n: int) -> SampledCandidates:
     tic = time.perf_counter()
     if len(pw.graph) == 0:
         return SampledCandidates(n, np.empty((0, 4)), np.empty((0, 0)), sampling_ms, 0.0)
-    fit_on = _voters(pw.vote_x, pw.vote_y, pw.voting, sampled[:, 2:], bin_px_s, 0)
+    fit_on = _voters(pw.vote_x, pw.vote_y, pw.voting, sampled[:, 2:], bin_px_s)
     models, data = _refit(sampled, _costs(pw, sampled), fit_on, pw.xr, pw.yr, pw.graph, _lm_kwargs(pw),
                           lambda mod: _costs(pw, mod), np.arange(len(pw.graph)), always=True)
     return SampledCandidates(n, models, data, sampling_ms, (time.perf_counter() - tic) * 1e3)
@@ -453,8 +453,8 @@ def segment_prepared(
     pw = prepared
     cfg, sensor_size, origin, graph = pw.config, pw.sensor_size, pw.origin, pw.graph
     xr, yr, grown, lambda_m, sigma = pw.xr, pw.yr, pw.grown, pw.lambda_m, pw.sigma
-    edge_w, radius, t_ref, conf, node_scale = pw.edge_w, pw.radius, pw.t_ref, pw.conf, pw.node_scale
-    fit_w, vote_x, vote_y, voting, suspect = pw.fit_w, pw.vote_x, pw.vote_y, pw.voting, pw.suspect
+    edge_w, radius, t_ref, conf = pw.edge_w, pw.radius, pw.t_ref, pw.conf
+    fit_w, suspect = pw.fit_w, pw.suspect
     m = len(graph)
     timings = dict(pw.timings)
     tic, cpu = time.perf_counter(), time.process_time()
@@ -634,9 +634,9 @@ def _unexplained_regions(lost, edges, min_nodes, max_regions):
     return out
 
 
-def _voters(vote_x, vote_y, voting, cand_t, bin_px_s, offset):
+def _voters(vote_x, vote_y, voting, cand_t, bin_px_s):
     """Round-0 fitting labels: each voting node joins the nearest sampled candidate whose
-    translation lies within two sampling bins of its vote (label offset + j), else -1.
+    translation lies within two sampling bins of its vote (label j), else -1.
 
     The voters of a candidate are the nodes whose 1-ring moves like it - for a small object,
     the object itself - so its first fit sees the object, not every node it happens to fit.
@@ -647,7 +647,7 @@ def _voters(vote_x, vote_y, voting, cand_t, bin_px_s, offset):
     d2 = (vote_x[:, None] - cand_t[:, 0]) ** 2 + (vote_y[:, None] - cand_t[:, 1]) ** 2
     j = np.argmin(d2, axis=1)
     near = voting & (d2[np.arange(len(j)), j] <= 4.0 * bin_px_s * bin_px_s)
-    out[near] = j[near] + offset
+    out[near] = j[near]
     return out
 
 
