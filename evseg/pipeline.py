@@ -94,7 +94,8 @@ class PipelineConfig:
             the current tracks make likely) for the segmentation.
             Same results either way. The process costs ~1.5 s to start and a second copy of
             the model and libraries in memory (~0.3 GB), so it pays off on recordings, not on
-            a few windows; ``evseg segment`` and ``evseg bench pipeline`` use it. The process is
+            a few windows; ``evseg bench pipeline`` uses it, and ``evseg segment`` unless the
+            recording is known to be shorter than 5 s. The process is
             started with ``spawn``: in a script (not a notebook), run the pipeline under
             ``if __name__ == "__main__":``, as with any Python multiprocessing.
         segmentation: a :class:`evseg.segmentation.SegmentationConfig` (None = defaults).

@@ -143,6 +143,28 @@ def test_calibrated_pipeline_labels_every_window(sim):
     assert all((r.labels >= 0).mean() > 0.5 for r in results)  # most events near a node
 
 
+def test_segment_picks_the_worker_by_recording_length(sim, tmp_path):
+    """`evseg segment --worker auto` (the default): a recording known to be short overlaps on a
+    thread (the process would not earn its start-up back), one of unknown length (text is read
+    as a stream) in the worker process; --worker forces either. Labels are the same."""
+    from evseg.io import write_text
+
+    rec, d = sim
+    write_text(rec.stream, tmp_path / "sim.txt")
+    labels = {}
+    for name, src, extra, worker in [("npz", d / "sim.npz", [], "thread"),
+                                     ("txt", tmp_path / "sim.txt", ["--sensor-size", "346x260"], "process"),
+                                     ("forced", d / "sim.npz", ["--worker", "process"], "process")]:
+        out = tmp_path / f"{name}.npz"
+        assert main(["segment", str(src), "--flow-method", "planefit", "--out", str(out), "--no-progress",
+                     *extra]) == 0
+        r = load_result(out)
+        assert f"worker: {worker}" in r.config
+        labels[name] = r.label
+    np.testing.assert_array_equal(labels["npz"], labels["txt"])
+    np.testing.assert_array_equal(labels["npz"], labels["forced"])
+
+
 def test_calibrated_pipeline_undistorts_alike_in_the_worker_process(short_stream):
     """The worker process gets the calibration: same labels and flows as sequentially."""
     runs = []

@@ -39,9 +39,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="threads of the normal-flow estimator (default: 1 while it overlaps the segmentation, else all cores)")
     p.add_argument("--no-overlap", action="store_true",
                    help="estimate each window's normal flow in turn instead of during the previous window's segmentation")
-    p.add_argument("--worker", choices=["process", "thread"], default="process",
+    p.add_argument("--worker", choices=["auto", "process", "thread"], default="auto",
                    help="where the overlapped flow and preparation run: a child process "
-                        "(beside the segmentation, ~1.5 s to start) or a thread of this one")
+                        "(beside the segmentation, ~1.5 s to start) or a thread of this one; "
+                        "auto: the thread for recordings known to be shorter than 5 s")
     p.add_argument("--masks", action="store_true", help="also store dense object masks in the result")
     p.add_argument("--video", type=Path, default=None, help="write an overlay video (.mp4)")
     p.add_argument("--frames", type=Path, default=None, help="write one overlay PNG per window here")
