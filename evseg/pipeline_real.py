@@ -257,13 +257,14 @@ def evaluate_pipeline_real(quick: bool = False, flow: str = "learned") -> list[d
 _EXPECT = {"none": "no object (one motion)", "ball": "the ball, nothing else"}
 
 
-PICTURES = {
-    "eed_what_is_background/EED_what_is_background_events.es": ("eed_real_learned.png", "eed_like"),
-    "dvxplorer_person_aedat4/sample.aedat4": ("real_dvxplorer_person.png", None),
-    "prophesee_sparks/evt2.raw": ("real_prophesee_sparks.png", None),
-    "prophesee_evt_samples/evt2_sample.raw": ("real_prophesee_spinner.png", None),
-}
-"""Recording -> (picture file, segmentation preset) that :func:`save_real_strips` writes."""
+PICTURES = (
+    ("eed_what_is_background/EED_what_is_background_events.es", "eed_real_learned.png", "eed_like"),
+    ("dvxplorer_person_aedat4/sample.aedat4", "real_dvxplorer_person.png", None),
+    ("dvxplorer_person_aedat4/sample.aedat4", "real_dvxplorer_person_static.png", "static_camera"),
+    ("prophesee_sparks/evt2.raw", "real_prophesee_sparks.png", None),
+    ("prophesee_evt_samples/evt2_sample.raw", "real_prophesee_spinner.png", None),
+)
+"""(recording, picture file, segmentation preset) of each strip :func:`save_real_strips` writes."""
 
 
 def save_real_strips(out_dir: str | Path, panel_px: int = 400) -> list[Path]:
@@ -282,7 +283,7 @@ def save_real_strips(out_dir: str | Path, panel_px: int = 400) -> list[Path]:
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     written = []
-    for rel, (name, preset) in PICTURES.items():
+    for rel, name, preset in PICTURES:
         path = root / rel
         if not path.is_file():
             continue

@@ -183,6 +183,22 @@ class SegmentationConfig:
     min_prediction_nodes: int = 8
     """Motion prediction: a predicted box needs this many nodes to fit a candidate."""
 
+    # --- camera ------------------------------------------------------------------------
+    static_camera: bool = False
+    """The camera does not move: the background is still, and every motion found is an
+    object. Zero motion is always a candidate (with no label cost: the still background is
+    always there); labels whose flow stays below ``still_px_s`` form the background (label 0,
+    which may hold no node at all: a still scene fires few events), every other label is an
+    object however much of the image it covers (no background layers). False (the paper's
+    setting, a moving camera): the label with the most nodes is the background."""
+    min_cell_events: int = 1
+    """Node cells holding fewer events than this give no node (needs the window's events:
+    ``event_xy``). With a still camera, lone events in their cell are mostly sensor noise;
+    with a moving one, sparse textures fire lone events too (keep 1)."""
+    still_px_s: float = 10.0
+    """With ``static_camera``: a label whose flow stays below this speed (px/s) over the
+    sensor's half-diagonal counts as still background (flicker, sensor noise)."""
+
     # --- outputs -----------------------------------------------------------------------
     max_object_extent: float = 0.35
     """A label holding >= 2 nodes in more than this share of the occupied cells of an 8x8
@@ -227,10 +243,10 @@ class SegmentationConfig:
             if getattr(self, name) < 0:
                 raise ConfigError(f"SegmentationConfig.{name} must be >= 0, got {getattr(self, name)}")
         for name in ("truncation", "uncertainty_scale", "sampling_bin", "max_object_extent", "edge_scale_px", "robust_scale",
-                     "max_propagation_px", "model_tol_px_s"):
+                     "max_propagation_px", "model_tol_px_s", "still_px_s"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"SegmentationConfig.{name} must be > 0, got {getattr(self, name)}")
-        for name in ("max_rounds", "expansion_cycles", "lm_iterations", "n_sampled"):
+        for name in ("max_rounds", "expansion_cycles", "lm_iterations", "n_sampled", "min_cell_events"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"SegmentationConfig.{name} must be >= 1, got {getattr(self, name)}")
         if self.residual_scale_px_s == 0 and self.residual_scale_rel == 0:

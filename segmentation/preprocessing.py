@@ -335,13 +335,16 @@ def build_node_graph(
     cell_rule: str = "confirmed",
     max_nodes: int | None = None,
     event_xy: tuple[np.ndarray, np.ndarray] | None = None,
+    min_cell_events: int = 1,
 ) -> NodeGraph:
     """Downsample the flows to nodes (:func:`select_nodes`) and triangulate them.
 
     All arrays are (N,); see :class:`NodeGraph` for the result's units. ``max_nodes``: node
     budget (:func:`node_cell_px`; None = no limit). ``event_xy``: positions (px) of all the
     window's events, for each node's support (:func:`cell_support`); None counts the usable
-    flows instead (flow given for every event). Inputs are not modified.
+    flows instead (flow given for every event). ``min_cell_events``: cells with a smaller
+    support give no node (a lone event in its cell: sensor noise, where nothing else fires).
+    Inputs are not modified.
     """
     cand = candidate_flows(x, y, t, nx, ny, uncertainty, min_flow_px_s, max_uncertainty, node_window_us)
     if max_nodes is not None:
@@ -350,11 +353,15 @@ def build_node_graph(
     idx = _select_among(cand, x, y, t, nx, ny, uncertainty, cell_px, cell_rule)
     xs = np.asarray(x, dtype=np.float64)[idx]
     ys = np.asarray(y, dtype=np.float64)[idx]
+    if event_xy is None:
+        event_xy = (np.asarray(x, dtype=np.float64)[cand], np.asarray(y, dtype=np.float64)[cand])
+    support = cell_support(xs, ys, event_xy[0], event_xy[1], cell_px)
+    if min_cell_events > 1:
+        kept = support >= min_cell_events
+        idx, xs, ys, support = idx[kept], xs[kept], ys[kept], support[kept]
     edges = delaunay_edges(xs, ys)
     length = np.hypot(xs[edges[:, 0]] - xs[edges[:, 1]], ys[edges[:, 0]] - ys[edges[:, 1]])
     unc = None if uncertainty is None else np.asarray(uncertainty, dtype=np.float64)[idx]
-    if event_xy is None:
-        event_xy = (np.asarray(x, dtype=np.float64)[cand], np.asarray(y, dtype=np.float64)[cand])
     return NodeGraph(
         index=idx,
         x=xs,
@@ -366,5 +373,5 @@ def build_node_graph(
         edges=edges,
         edge_length=length,
         cell_px=float(cell_px),
-        support=cell_support(xs, ys, event_xy[0], event_xy[1], cell_px),
+        support=support,
     )

@@ -380,7 +380,7 @@ def prepare_window(
     graph = build_node_graph(a["x"], a["y"], a["t"], a["nx"], a["ny"], a.get("uncertainty"),
                              cfg.cell_px, cfg.min_flow_px_s, cfg.max_uncertainty,
                              cfg.node_window_us, cfg.uncertainty_scale, cfg.cell_rule, cfg.max_nodes,
-                             _event_xy(event_xy))
+                             _event_xy(event_xy), cfg.min_cell_events)
     origin = _origin(cfg, sensor_size)
     # When the node budget made the cell grow by g, each node stands for ~g nodes of the finer
     # grid along an edge: the lengths tied to the node spacing grow by g and the label cost
@@ -479,7 +479,10 @@ def segment_prepared(
             loss_scale_px_s=cfg.robust_scale * sigma, iterations=cfg.lm_iterations,
             affine_prior_px=cfg.affine_prior_px)
         n_object_candidates = len(predicted)
-    if previous is not None and len(previous.models) and previous.origin_px == origin:
+    if cfg.static_camera:
+        # A still camera: zero motion (the background's) is always a candidate.
+        predicted = np.concatenate([STILL_MODEL[None], predicted])
+    elif previous is not None and len(previous.models) and previous.origin_px == origin:
         # The previous background model is a free, usually excellent candidate.
         predicted = np.concatenate([previous.models[:1], predicted])
     n_sample = cfg.n_sampled_with_prediction if n_object_candidates else cfg.n_sampled
@@ -512,6 +515,8 @@ def segment_prepared(
         # lambda_m (it existed a window ago, so a new motion is less of a surprise).
         h = np.full(len(models), lambda_m)
         h[len(predicted) - n_object_candidates : len(predicted)] *= cfg.tracked_label_cost
+        if cfg.static_camera:
+            h[0] = 0.0  # the still background is always there
         # Round 0 (see module docstring): each sampled candidate fitted to the nodes that voted
         # for it (sample_candidates), then every node takes its cheapest candidate.
         data = np.concatenate([costs(predicted), sampled.data], axis=1)
@@ -556,12 +561,16 @@ def segment_prepared(
             if not changed and moved <= cfg.model_tol_px_s:
                 break
         e_final = energy(labels, data, graph.edges, edge_w, h)
-        # Background = largest cluster; objects by decreasing size.
-        sizes = np.bincount(labels, minlength=len(models))
-        order = np.argsort(-sizes, kind="stable")
-        rank = np.empty(len(order), dtype=np.int64)
-        rank[order] = np.arange(len(order))
-        labels, models, sizes = rank[labels], models[order], sizes[order]
+        # Background = largest cluster (a still camera: the still labels); objects by
+        # decreasing size.
+        if cfg.static_camera:
+            labels, models, sizes = _still_background(labels, models, radius, cfg.still_px_s)
+        else:
+            sizes = np.bincount(labels, minlength=len(models))
+            order = np.argsort(-sizes, kind="stable")
+            rank = np.empty(len(order), dtype=np.int64)
+            rank[order] = np.arange(len(order))
+            labels, models, sizes = rank[labels], models[order], sizes[order]
         small = np.flatnonzero(sizes < cfg.min_object_nodes)
         small = small[small > 0]
         if len(small):
@@ -574,7 +583,7 @@ def segment_prepared(
     timings["labeling_fitting_cpu"] = (time.process_time() - cpu) * 1e3 + sampled.fitting_ms
 
     tic, cpu = time.perf_counter(), time.process_time()
-    if sensor_size is not None and len(models) > 1:
+    if sensor_size is not None and len(models) > 1 and not cfg.static_camera:
         layers = background_layers(labels, graph.x, graph.y, sensor_size, cfg.max_object_extent)
         if len(layers):
             keep = np.setdiff1d(np.arange(len(models)), layers)
@@ -607,6 +616,25 @@ def segment_prepared(
         sensor_size=None if sensor_size is None else (int(sensor_size[0]), int(sensor_size[1])),
         timings=timings, max_propagation_px=pw.max_propagation_px,
     )
+
+
+STILL_MODEL = np.array([1.0, 0.0, 0.0, 0.0])
+"""The affine model of zero motion (rho, theta, t_x, t_y): a still camera's background."""
+
+
+def _still_background(labels: np.ndarray, models: np.ndarray, radius_px: float, still_px_s: float):
+    """Labels, models and sizes with label 0 = every label moving less than ``still_px_s``
+    over ``radius_px`` (merged; model: zero motion; it may hold no node) and 1..K the moving
+    labels by decreasing size."""
+    n = len(models)
+    sizes = np.bincount(labels, minlength=n)
+    speed = model_change_px_s(np.tile(STILL_MODEL, (n, 1)), models, radius_px)
+    moving = np.flatnonzero(speed > still_px_s)
+    moving = moving[np.argsort(-sizes[moving], kind="stable")]
+    remap = np.zeros(n, dtype=np.int64)  # still labels -> 0
+    remap[moving] = np.arange(1, len(moving) + 1)
+    new_sizes = np.concatenate([[sizes[speed <= still_px_s].sum()], sizes[moving]])
+    return remap[labels], np.concatenate([STILL_MODEL[None], models[moving]]), new_sizes
 
 
 def _unexplained_regions(lost, edges, min_nodes, max_regions):

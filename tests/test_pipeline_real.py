@@ -146,7 +146,7 @@ def test_strips_are_written(shared_data, tmp_path, monkeypatch):
     eed = "eed_what_is_background/EED_what_is_background_events.es"
     if not (shared_data / eed).is_file():
         pytest.skip("EED excerpt not available")
-    monkeypatch.setattr(pr, "PICTURES", {eed: ("eed.png", "eed_like")})
+    monkeypatch.setattr(pr, "PICTURES", ((eed, "eed.png", "eed_like"),))
     assert pr.save_real_strips(tmp_path, panel_px=380) == [tmp_path / "eed.png"]
     img = cv2.imread(str(tmp_path / "eed.png"))
     assert img.shape == (360, 4 * 380 + 3 * 4, 3)  # 190x180 sensor at scale 2, four panels, 4 px gaps

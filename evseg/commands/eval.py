@@ -22,6 +22,7 @@ TARGETS = {
     "flow-real": "evseg.train.evaluate:evaluate_flow_real",
     "pipeline": "evseg.pipeline_eval:evaluate_pipeline",
     "pipeline-real": "evseg.pipeline_real:evaluate_pipeline_real",
+    "static": "evseg.pipeline_eval:evaluate_static_camera",
 }
 
 

@@ -56,3 +56,17 @@ def test_node_budget_values(tmp_path):
             load_segmentation_config(p)
     with pytest.raises(ConfigError, match="max_nodes"):
         SegmentationConfig(max_nodes=0)
+
+
+def test_static_camera_settings(tmp_path):
+    cfg = load_segmentation_config("static_camera")
+    assert cfg.static_camera is True and cfg.min_cell_events == 3
+    assert SegmentationConfig().static_camera is False and SegmentationConfig().min_cell_events == 1
+    p = tmp_path / "c.yaml"
+    p.write_text("static_camera: yes please\n")
+    with pytest.raises(ConfigError, match="static_camera"):
+        load_segmentation_config(p)
+    with pytest.raises(ConfigError, match="min_cell_events"):
+        SegmentationConfig(min_cell_events=0)
+    with pytest.raises(ConfigError, match="still_px_s"):
+        SegmentationConfig(still_px_s=0.0)

@@ -193,3 +193,19 @@ def test_build_node_graph_keeps_the_budget_and_reports_its_cell():
     same = build_node_graph(x, y, t, nx, ny, cell_px=3.0, max_nodes=len(free))
     np.testing.assert_array_equal(same.index, free.index)
     np.testing.assert_array_equal(same.edges, free.edges)
+
+
+def test_cells_with_too_few_events_give_no_node():
+    """min_cell_events: a cell's support counts all the window's events (event_xy); a lone
+    event in its cell (sensor noise under a still camera) gives no node and no graph edge."""
+    x = np.array([1.0, 10.0, 20.0])
+    y = np.zeros(3)
+    t = np.array([0, 1, 2])
+    nx, ny = np.full(3, 50.0), np.zeros(3)
+    ex = np.array([1.0, 1.5, 2.0, 10.0, 20.0, 20.5])  # cells 0 (3 events), 3 (1), 6 (2)
+    ey = np.zeros(len(ex))
+    g = build_node_graph(x, y, t, nx, ny, cell_px=3.0, event_xy=(ex, ey))
+    assert g.index.tolist() == [0, 1, 2] and g.support.tolist() == [3.0, 1.0, 2.0]
+    g = build_node_graph(x, y, t, nx, ny, cell_px=3.0, event_xy=(ex, ey), min_cell_events=2)
+    assert g.index.tolist() == [0, 2] and g.support.tolist() == [3.0, 2.0]
+    assert g.edges.tolist() == [[0, 1]]

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from evseg.errors import EventDataError
 
-from evseg.segmentation import SegmentationConfig, propagate_labels, segment_normal_flow
+from evseg.segmentation import SegmentationConfig, load_segmentation_config, propagate_labels, segment_normal_flow
 from evseg.segmentation.motion_model import flow_field
 from evseg.segmentation.synthetic import synthetic_scene
 
@@ -360,3 +360,32 @@ def test_precomputed_sampled_candidates_segment_exactly_like_computing_them(monk
         np.testing.assert_array_equal(got.node_labels, want.node_labels)
         np.testing.assert_array_equal(got.models, want.models)
         assert got.boxes == want.boxes and got.n_candidates == want.n_candidates
+
+
+def test_a_still_camera_keeps_zero_motion_as_background():
+    """Simulated static-camera scene (held-out seed, ground-truth normal flow): with the default
+    settings the largest moving object is taken for the background and nothing is detected;
+    with the static_camera preset every object is found (50 ms, 10 object-windows)."""
+    from evseg.segmentation.evaluate import evaluate_scene
+
+    moving = evaluate_scene("static_camera", 1000, 50_000, config=SegmentationConfig())
+    still = evaluate_scene("static_camera", 1000, 50_000, config=load_segmentation_config("static_camera"))
+    assert moving["objects"] == still["objects"] == 10
+    assert moving["detection_rate"] == 0.0
+    assert still["detection_rate"] == 1.0 and still["count_correct"] == 1.0
+
+
+def test_still_labels_merge_into_an_empty_background_and_objects_sort_by_size():
+    from evseg.segmentation.solver import STILL_MODEL, _still_background
+
+    models = np.array([[1.0, 0.0, 200.0, 0.0],     # moving, 2 nodes
+                       [1.0, 0.0, 3.0, -2.0],      # still (3.6 px/s), 1 node
+                       [1.0, 0.0, 0.0, -150.0],    # moving, 3 nodes
+                       [1.0, 0.001, 0.0, 0.0]])    # 0.001 rad/s x 200 px = 0.2 px/s: still, 0 nodes
+    labels = np.array([0, 2, 1, 2, 0, 2])
+    new, new_models, sizes = _still_background(labels, models, radius_px=200.0, still_px_s=10.0)
+    assert new.tolist() == [2, 1, 0, 1, 2, 1]
+    np.testing.assert_array_equal(new_models, [STILL_MODEL, models[2], models[0]])
+    assert sizes.tolist() == [1, 3, 2]
+    none_still, _, sizes = _still_background(np.array([0, 0, 2]), models[[0, 0, 2]], 200.0, 10.0)
+    assert sizes[0] == 0 and set(none_still.tolist()) == {1, 2}  # an empty background label 0
