@@ -190,7 +190,9 @@ class SegmentationConfig:
     always there); labels whose flow stays below ``still_px_s`` form the background (label 0,
     which may hold no node at all: a still scene fires few events), every other label is an
     object however much of the image it covers (no background layers). False (the paper's
-    setting, a moving camera): the label with the most nodes is the background."""
+    setting, a moving camera): the label with the most nodes is the background. Also leaves
+    scattered nodes out of each object's box and mask (``outputs.split_objects``'
+    ``isolated_out``)."""
     min_cell_events: int = 1
     """Node cells holding fewer events than this give no node (needs the window's events:
     ``event_xy``). With a still camera, lone events in their cell are mostly sensor noise;

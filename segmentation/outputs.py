@@ -67,6 +67,7 @@ def split_objects(
     y: np.ndarray | None = None,
     gap_px: float = 0.0,
     max_parts: int = 0,
+    isolated_out: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, dict[int, np.ndarray]]:
     """Make every sizeable separate part of a moving label its own object.
 
@@ -86,6 +87,10 @@ def split_objects(
         models: (K+1, 4). min_nodes: minimum size of a separate object.
         x, y: (M,) node positions px (needed when gap_px > 0). gap_px: joining distance, px.
         max_parts: most separate objects one label may make (0 = no limit).
+        isolated_out: leave out of each object's region (box, mask) the nodes with no graph
+            edge of at most ``gap_px`` to another node of it: scattered nodes that a long
+            Delaunay edge ties to the object (sensor noise under a still camera, where nothing
+            else fires); they keep the object's label.
     Returns:
         (labels, models, regions): new labels 1..K' by decreasing part size, (K'+1, 4) models,
         and {k: node indices of object k's region}.
@@ -129,7 +134,24 @@ def split_objects(
     for k, (main, small) in fragments.items():
         frag = (labels == k) & np.isin(comp, small)
         new_labels[frag] = part_label[(k, main)]
+    if isolated_out and gap_px > 0 and x is not None and regions:
+        regions = _without_isolated(regions, m, np.asarray(edges, dtype=np.int64).reshape(-1, 2),
+                                    np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64), gap_px)
     return new_labels, np.array(new_models).reshape(-1, 4), regions
+
+
+def _without_isolated(regions: dict[int, np.ndarray], m: int, edges: np.ndarray, x: np.ndarray,
+                      y: np.ndarray, gap_px: float) -> dict[int, np.ndarray]:
+    """Each region without its nodes that have no graph edge of at most ``gap_px`` to another
+    node of the region (a region left empty keeps its nodes)."""
+    short = np.hypot(x[edges[:, 0]] - x[edges[:, 1]], y[edges[:, 0]] - y[edges[:, 1]]) <= gap_px
+    region_of = np.full(m, -1, dtype=np.int64)
+    for j, nodes in regions.items():
+        region_of[nodes] = j
+    same = short & (region_of[edges[:, 0]] == region_of[edges[:, 1]]) & (region_of[edges[:, 0]] >= 0)
+    close = np.zeros(m, dtype=bool)
+    close[edges[same].ravel()] = True
+    return {j: (nodes[close[nodes]] if close[nodes].any() else nodes) for j, nodes in regions.items()}
 
 
 def _join_near_components(comp, labels, x, y, gap_px):

@@ -594,7 +594,7 @@ def segment_prepared(
             models = models[keep]
     labels, models, regions = split_objects(labels, graph.edges, models, cfg.min_object_nodes,
                                             graph.x, graph.y, cfg.split_gap_px * grown,
-                                            cfg.max_object_parts)
+                                            cfg.max_object_parts, isolated_out=cfg.static_camera)
     boxes, masks = {}, {}
     for k, nodes in regions.items():  # loop over objects (a handful), arrays inside
         # Motion compensation: move each node along its object's flow to the window's mid-time,

@@ -52,3 +52,22 @@ def test_same_label_components_match_scipy_numbering():
         keep = e[lab[e[:, 0]] == lab[e[:, 1]]]
         adj = coo_matrix((np.ones(len(keep)), (keep[:, 0], keep[:, 1])), shape=(m, m))
         np.testing.assert_array_equal(same_label_components(lab, e), connected_components(adj, directed=False)[1])
+
+
+def test_isolated_nodes_stay_in_the_label_but_out_of_the_region():
+    """isolated_out: a node tied to an object only by a long edge (noise far from it) keeps the
+    object's label but not its region, so the box is the object's."""
+    from evseg.segmentation.outputs import split_objects
+
+    # object: a 3x3 block of nodes 3 px apart at x, y in [20, 26]; one far node at (90, 90)
+    gx, gy = np.meshgrid([20.0, 23.0, 26.0], [20.0, 23.0, 26.0])
+    x = np.concatenate([[0.0, 100.0, 0.0], gx.ravel(), [90.0]])
+    y = np.concatenate([[0.0, 0.0, 100.0], gy.ravel(), [90.0]])
+    labels = np.array([0, 0, 0] + [1] * 9 + [1])
+    from evseg.segmentation.preprocessing import delaunay_edges
+
+    edges = delaunay_edges(x, y)
+    models = np.array([[1.0, 0, 0, 0], [1.0, 0, 50.0, 0]])
+    for isolated_out, expected in ((False, set(range(3, 13))), (True, set(range(3, 12)))):
+        new, _, regions = split_objects(labels, edges, models, 6, x, y, 12.0, 0, isolated_out=isolated_out)
+        assert new[12] == 1 and set(regions[1].tolist()) == expected
