@@ -29,8 +29,9 @@ Order of the steps (our choice where the paper is silent):
    a refitted model replaces the old one only if it lowers its label's data energy, so the
    energy never increases. Stop when the labeling is unchanged and no model's flow moved more
    than ``model_tol_px_s``.
-5. The label with the most nodes is the background (label 0); the others are independently
-   moving objects 1..K by decreasing node count; objects under ``min_object_nodes`` nodes
+5. The label with the most nodes is the background (label 0; with ``static_camera``, the
+   labels that do not move, zero motion being always a candidate); the others are
+   independently moving objects 1..K by decreasing node count; objects under ``min_object_nodes`` nodes
    become -1 (unassigned). A label spread over more than ``max_object_extent`` of the image
    (:func:`.outputs.background_layers`) is a background layer - e.g. a net in front of the scene,
    which the EED ground truth counts as background - and joins label 0 (the model of label 0
