@@ -78,6 +78,10 @@ REAL_SEGMENTATION = (
     RealRecording("dvxplorer_person_aedat4/sample.aedat4", None, "a person, static camera"),
     RealRecording("prophesee_evt_samples/evt2_sample.raw", None, "a spinning arm, static camera", quick=False),
     RealRecording("prophesee_sparks/evt2.raw", None, "sparks, static camera", quick=False),
+    RealRecording("dvxplorer_person_aedat4/sample.aedat4", "static_camera", "a person, static camera", quick=False),
+    RealRecording("prophesee_evt_samples/evt2_sample.raw", "static_camera", "a spinning arm, static camera",
+                  quick=False),
+    RealRecording("prophesee_sparks/evt2.raw", "static_camera", "sparks, static camera", quick=False),
     RealRecording("prophesee_evt_samples/evt3_sample.raw", "outdoor_like", "a street from a moving car", quick=False),
 )
 """The recordings ``evseg eval pipeline-real`` segments, in table order."""
