@@ -143,6 +143,9 @@ class SegmentationConfig:
     merge_tol: float = 1.0
     """Labels whose flow fields differ by less than merge_tol * sigma over the sensor are
     merged after each fit (only when that lowers the energy); 0 disables."""
+    merge_adjacent: bool = False
+    """After each fit, try joining two touching labels under one model fitted to both (the
+    larger label's model refined by LM on their union); kept only when that lowers the energy."""
     lm_iterations: int = 5
     """Levenberg-Marquardt iterations per fitting step (all labels in one batch)."""
     lm_damping: float = 1e-3
@@ -217,6 +220,12 @@ class SegmentationConfig:
     split_gap_px: float = 12.0
     """Parts of one motion label closer than this (px, box to box) are one object (an object
     seen through a net falls apart into nearby pieces); farther parts are separate objects."""
+    occlusion_gap_px: float = 48.0
+    """Parts of one motion label farther apart than ``split_gap_px`` but within this (px, box to
+    box), each of ``min_object_nodes``, are still one object when both touch one other object:
+    the object in front splits the one behind it. 0 disables. Oracle validation (seeds
+    900-920, 100 ms): detection 0.974 -> 0.978 clean, 0.941 -> 0.944 with 30 % outliers; the
+    held-out scenes have no such occlusion and are unchanged."""
     max_object_parts: int = 2
     """A motion label that falls apart into more separate objects than this (each of
     ``min_object_nodes``, farther apart than ``split_gap_px``) is a scattered background layer
@@ -239,7 +248,7 @@ class SegmentationConfig:
         _check_choice("cell_rule", self.cell_rule, CELL_RULES)
         for name in ("n_resampled", "cell_px", "min_flow_px_s", "residual_scale_px_s",
                      "residual_scale_rel", "residual_scale_noise", "lambda_p", "lambda_m",
-                     "lm_damping", "mask_dilate_px", "merge_tol", "split_gap_px",
+                     "lm_damping", "mask_dilate_px", "merge_tol", "split_gap_px", "occlusion_gap_px",
                      "uncertainty_gain", "affine_prior_px", "max_object_parts",
                      "tracked_label_cost", "support_exponent"):
             if getattr(self, name) < 0:

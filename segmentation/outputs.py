@@ -68,6 +68,7 @@ def split_objects(
     gap_px: float = 0.0,
     max_parts: int = 0,
     isolated_out: bool = False,
+    occlusion_gap_px: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray, dict[int, np.ndarray]]:
     """Make every sizeable separate part of a moving label its own object.
 
@@ -102,7 +103,9 @@ def split_objects(
     comp = same_label_components(labels, np.ascontiguousarray(np.asarray(edges, dtype=np.int64).reshape(-1, 2)))
     if gap_px > 0 and x is not None:
         comp = _join_near_components(comp, labels, np.asarray(x, dtype=np.float64),
-                                     np.asarray(y, dtype=np.float64), gap_px)
+                                     np.asarray(y, dtype=np.float64), gap_px,
+                                     np.asarray(edges, dtype=np.int64).reshape(-1, 2), occlusion_gap_px,
+                                     min_nodes)
     parts = []  # (size, label, component id)
     layer = []  # labels scattered into more than max_parts parts
     fragments = {}  # label -> (component ids that stay with its largest part)
@@ -154,10 +157,8 @@ def _without_isolated(regions: dict[int, np.ndarray], m: int, edges: np.ndarray,
     return {j: (nodes[close[nodes]] if close[nodes].any() else nodes) for j, nodes in regions.items()}
 
 
-def _join_near_components(comp, labels, x, y, gap_px):
-    """Relabel components so that components of one label with boxes within gap_px share an id."""
-    from scipy.sparse.csgraph import connected_components
-
+def _component_boxes(comp, labels, x, y):
+    """Per component id: its label and box (x0, y0, x1, y1), px."""
     n = int(comp.max()) + 1
     lab_of = np.full(n, -1, dtype=np.int64)
     lab_of[comp] = labels
@@ -169,16 +170,56 @@ def _join_near_components(comp, labels, x, y, gap_px):
     np.minimum.at(y0, comp, y)
     np.maximum.at(x1, comp, x)
     np.maximum.at(y1, comp, y)
+    return lab_of, x0, y0, x1, y1
+
+
+def _join_components(comp, cand, join):
+    """Relabel components: those of ``cand`` linked by the (C, C) matrix ``join`` share an id."""
+    from scipy.sparse.csgraph import connected_components
+
+    _, group = connected_components(join, directed=False)
+    new = np.arange(int(comp.max()) + 1)
+    new[cand] = cand[np.unique(group, return_index=True)[1]][group]
+    return new[comp]
+
+
+def _near_pairs(cand, lab_of, x0, y0, x1, y1, gap_px):
+    """(C, C) bool: components of one label whose boxes come within ``gap_px``."""
+    a, b = cand[:, None], cand[None, :]
+    return ((lab_of[a] == lab_of[b]) & (x0[a] <= x1[b] + gap_px) & (x0[b] <= x1[a] + gap_px)
+            & (y0[a] <= y1[b] + gap_px) & (y0[b] <= y1[a] + gap_px))
+
+
+def _join_near_components(comp, labels, x, y, gap_px, edges=None, occlusion_gap_px=0.0, min_nodes=1):
+    """Relabel components so that components of one label with boxes within ``gap_px`` share an
+    id; then so do those within ``occlusion_gap_px`` that have ``min_nodes`` nodes each and
+    both touch (a graph edge) one component of another object label: the object in front
+    splits the object behind it (stray nodes of the label inside the occluder do not count)."""
+    lab_of, x0, y0, x1, y1 = _component_boxes(comp, labels, x, y)
     cand = np.flatnonzero(lab_of >= 1)  # components of object labels only
     if len(cand) < 2:
         return comp
-    a, b = cand[:, None], cand[None, :]
-    near = ((lab_of[a] == lab_of[b]) & (x0[a] <= x1[b] + gap_px) & (x0[b] <= x1[a] + gap_px)
-            & (y0[a] <= y1[b] + gap_px) & (y0[b] <= y1[a] + gap_px))
-    _, group = connected_components(near, directed=False)
-    new = np.arange(n)
-    new[cand] = cand[np.unique(group, return_index=True)[1]][group]
-    return new[comp]
+    comp = _join_components(comp, cand, _near_pairs(cand, lab_of, x0, y0, x1, y1, gap_px))
+    if not (occlusion_gap_px > gap_px and edges is not None and len(edges)):
+        return comp
+    ca, cb = comp[edges[:, 0]], comp[edges[:, 1]]
+    la, lb = labels[edges[:, 0]], labels[edges[:, 1]]
+    touch = (la >= 1) & (lb >= 1) & (la != lb)
+    if not touch.any():
+        return comp
+    from scipy.sparse import coo_matrix
+
+    n = int(comp.max()) + 1
+    lab_of, x0, y0, x1, y1 = _component_boxes(comp, labels, x, y)
+    cand = np.flatnonzero((lab_of >= 1) & (np.bincount(comp, minlength=n) >= min_nodes))
+    if len(cand) < 2:
+        return comp
+    t = coo_matrix((np.ones(2 * int(touch.sum())), (np.concatenate([ca[touch], cb[touch]]),
+                                                     np.concatenate([cb[touch], ca[touch]]))),
+                   shape=(n, n)).tocsr()
+    t.data[:] = 1.0
+    common = (t @ t)[cand][:, cand].toarray() > 0  # two components, one occluder
+    return _join_components(comp, cand, common & _near_pairs(cand, lab_of, x0, y0, x1, y1, occlusion_gap_px))
 
 
 def region_box(

@@ -169,6 +169,40 @@ def test_split_objects_joins_nearby_pieces_of_one_label():
     assert len(np.unique(new[new > 0])) == 3
 
 
+def test_split_objects_joins_the_parts_of_an_occluded_object():
+    """Two pieces of label 1, 20 px apart, are one object when label 2 (an object in front)
+    touches both; the same pieces with background between them stay two objects, and a stray
+    node of label 1 inside the occluder never joins (it has fewer than min_nodes nodes)."""
+    from evseg.segmentation.outputs import split_objects
+
+    # chain along x: label 1 on x 0..2, the gap x 6..18, label 1 on x 22..24, a lone 1 at x 30
+    x = np.array([0, 1, 2, 6, 10, 14, 18, 22, 23, 24, 30], dtype=float)
+    y = np.zeros(11)
+    edges = np.array([[i, i + 1] for i in range(10)])
+    models = np.array([[1.0, 0, 0, 0], [1.0, 0, 5, 5], [1.0, 0, -5, 0]])
+    occluded = np.array([1, 1, 1, 2, 2, 2, 2, 1, 1, 1, 2])
+    kw = dict(min_nodes=3, x=x, y=y, gap_px=5.0, occlusion_gap_px=24.0)
+    new, mod, regions = split_objects(occluded, edges, models, **kw)
+    np.testing.assert_array_equal(new, [1, 1, 1, 2, 2, 2, 2, 1, 1, 1, 2])
+    np.testing.assert_array_equal(regions[1], [0, 1, 2, 7, 8, 9])
+    # beyond occlusion_gap_px (19 px gap > 18), or with the rule off: two objects
+    for far in (dict(kw, occlusion_gap_px=18.0), dict(kw, occlusion_gap_px=0.0)):
+        new, _, regions = split_objects(occluded, edges, models, **far)
+        assert sorted(regions) == [1, 2, 3]
+    # background between the pieces: two objects moving alike
+    apart = np.where(occluded == 2, 0, occluded)
+    new, _, regions = split_objects(apart, edges, models[:2], **kw)
+    np.testing.assert_array_equal(new, [1, 1, 1, 0, 0, 0, 0, 2, 2, 2, 0])
+    # a stray node of label 1 inside the occluder (node 11, tied to 4 and 5) touches it like
+    # the left piece does, but is no part: it stays out of the piece's region
+    xs, ys = np.append(x, 12.0), np.append(y, 1.0)
+    es = np.vstack([edges, [[4, 11], [5, 11]]])
+    stray = np.append(np.where(np.arange(11) == 6, 0, occluded), 1)  # node 6: background
+    new, _, regions = split_objects(stray, es, models, **dict(kw, x=xs, y=ys))
+    np.testing.assert_array_equal(regions[1], [0, 1, 2])
+    assert new[11] == 1 and sorted(regions) == [1, 2, 3]
+
+
 def test_split_objects_turns_a_scattered_label_into_background():
     """A label in three separate pieces is a patch of a background layer when at most two
     objects may share a label (max_parts=2); two pieces stay two objects."""
