@@ -143,9 +143,6 @@ class SegmentationConfig:
     merge_tol: float = 1.0
     """Labels whose flow fields differ by less than merge_tol * sigma over the sensor are
     merged after each fit (only when that lowers the energy); 0 disables."""
-    merge_adjacent: bool = False
-    """After each fit, try joining two touching labels under one model fitted to both (the
-    larger label's model refined by LM on their union); kept only when that lowers the energy."""
     lm_iterations: int = 5
     """Levenberg-Marquardt iterations per fitting step (all labels in one batch)."""
     lm_damping: float = 1e-3

@@ -555,8 +555,6 @@ def segment_prepared(
             models, data = _refit(models, data, labels, xr, yr, graph, lm_kw, costs, ar)
             models, data, labels, h = _merge_duplicates(models, data, labels, h, cfg.merge_tol * sigma,
                                                         radius, graph.edges, edge_w)
-            if cfg.merge_adjacent:
-                models, data, labels, h = _merge_adjacent(models, data, labels, h, pw, lm_kw)
             if len(models) != len(old):
                 changed = True
                 old = models  # merged: the tolerance test is meaningless this round
@@ -710,60 +708,6 @@ def _refit(models, data, labels, xr, yr, graph, lm_kw, costs, ar, always=False):
     data = data.copy()
     data[:, better] = new_data[:, better]
     return models, data
-
-
-def _merge_adjacent(models, data, labels, h, pw, lm_kw):
-    """Join touching labels under one refitted model while that lowers the energy.
-
-    An expansion move cannot join two labels that split one object: each label's model, taken
-    alone, explains the other's nodes worse than their own. The joint model, fitted to the
-    union, may explain both nearly as well and save a label cost.
-    """
-    edges, edge_w = pw.graph.edges, pw.edge_w
-    for _ in range(len(models)):  # at most one join per label
-        n = len(models)
-        if n < 3:
-            break
-        la, lb = labels[edges[:, 0]], labels[edges[:, 1]]
-        cut = la != lb
-        if not cut.any():
-            break
-        sizes = np.bincount(labels, minlength=n)
-        big = int(np.argmax(sizes))  # the background: expansion already handles it
-        pa, pb = np.minimum(la[cut], lb[cut]), np.maximum(la[cut], lb[cut])
-        ok = (pa != big) & (pb != big)
-        if not ok.any():
-            break
-        pairs, counts = np.unique(np.stack([pa[ok], pb[ok]], axis=1), axis=0, return_counts=True)
-        e_now = energy(labels, data, edges, edge_w, h)
-        done = False
-        for a, b in pairs[np.argsort(-counts, kind="stable")]:
-            keep_l, drop_l = (a, b) if sizes[a] >= sizes[b] else (b, a)
-            sel = (labels == a) | (labels == b)
-            kw = dict(lm_kw)
-            if kw.get("weights") is not None:
-                kw["weights"] = kw["weights"][sel]
-            joint = fit_lm(pw.xr[sel], pw.yr[sel], pw.graph.nx[sel], pw.graph.ny[sel],
-                           np.zeros(int(sel.sum()), dtype=np.int64), models[keep_l][None], **kw)
-            col = _costs(pw, joint)[:, 0]
-            new_data = data.copy()
-            new_data[:, keep_l] = col
-            new_labels = np.where(labels == drop_l, keep_l, labels)
-            new_h = h.copy()
-            new_h[keep_l] = min(h[a], h[b])
-            keep = np.flatnonzero(np.arange(n) != drop_l)
-            remap = np.full(n, -1, dtype=np.int64)
-            remap[keep] = np.arange(len(keep))
-            cand = (remap[new_labels], new_data[:, keep], new_h[keep])
-            if energy(cand[0], cand[1], edges, edge_w, cand[2]) < e_now:
-                new_models = models.copy()
-                new_models[keep_l] = joint[0]
-                models, labels, data, h = new_models[keep], cand[0], cand[1], cand[2]
-                done = True
-                break
-        if not done:
-            break
-    return models, data, labels, h
 
 
 def _merge_duplicates(models, data, labels, h, tol_px_s, radius_px, edges, edge_w):
