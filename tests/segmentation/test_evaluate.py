@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from evseg.segmentation.evaluate import add_outliers, evaluate_scene
+from evseg.segmentation.evaluate import add_outliers, evaluate_scene, own_events_detected
 
 
 def test_add_outliers_replaces_the_requested_share_deterministically():
@@ -23,3 +23,12 @@ def test_evaluate_scene_runs_on_a_short_simulated_scene():
     assert row["windows"] == 2
     assert 0.0 <= row["mean_iou"] <= 1.0
     assert row["nodes"] > 100
+    assert row["detection_ceiling"] == 1.0  # every object's events span its box here
+
+
+def test_own_events_detected_needs_the_events_to_span_the_truth_box():
+    """A car whose events cover the top 45 % of its 10 x 20 px box fails the criterion (IoU
+    0.45); events at its four corners pass (the box they span is the truth box)."""
+    truth = (0, 0, 9, 19)
+    assert not own_events_detected(np.array([0, 9]), np.array([0, 8]), truth, (30, 30))
+    assert own_events_detected(np.array([0, 9, 0, 9]), np.array([0, 0, 19, 19]), truth, (30, 30))
