@@ -162,6 +162,12 @@ class SegmentationConfig:
     """Fast sampling: candidate models from distinct normal flows without prediction."""
     n_sampled_with_prediction: int = 6
     """Fast sampling: candidates when motion prediction supplied at least one candidate."""
+    n_sampled_normal: int = 0
+    """Fast sampling: this many more candidates by farthest-point sampling over the nodes' own
+    normal flows (not their 1-ring translations), away from the other sampled candidates: a
+    small fast object whose 1-rings mix its nodes with the background's gets no usable
+    translation vote, but its normal flows lie apart from the background's, around its
+    translation (0 = off; the ``eed_like`` preset uses 2)."""
     n_resampled: int = 4
     """Round 0b: at most this many extra candidates, fitted to the largest connected regions of
     nodes no fitted candidate explains (0 = off)."""
@@ -243,7 +249,7 @@ class SegmentationConfig:
         _check_choice("sampling_flow", self.sampling_flow, SAMPLING_FLOWS)
         _check_choice("uncertainty_use", self.uncertainty_use, UNCERTAINTY_USES)
         _check_choice("cell_rule", self.cell_rule, CELL_RULES)
-        for name in ("n_resampled", "cell_px", "min_flow_px_s", "residual_scale_px_s",
+        for name in ("n_resampled", "n_sampled_normal", "cell_px", "min_flow_px_s", "residual_scale_px_s",
                      "residual_scale_rel", "residual_scale_noise", "lambda_p", "lambda_m",
                      "lm_damping", "mask_dilate_px", "merge_tol", "split_gap_px", "occlusion_gap_px",
                      "uncertainty_gain", "affine_prior_px", "max_object_parts",

@@ -141,17 +141,9 @@ def fast_sampling(
     Returns:
         (n', 4) models (1, 0, t_x, t_y), n' <= n.
     """
-    nx = np.asarray(nx, dtype=np.float64)
-    ny = np.asarray(ny, dtype=np.float64)
     if len(nx) == 0 or n < 1:
         return np.empty((0, 4))
-    ix = np.floor(nx / bin_px_s).astype(np.int64)
-    iy = np.floor(ny / bin_px_s).astype(np.int64)
-    ix -= ix.min()
-    iy -= iy.min()
-    _, key, count = np.unique(ix * (int(iy.max()) + 1) + iy, return_inverse=True, return_counts=True)
-    key = key.ravel()
-    means = np.column_stack([np.bincount(key, weights=nx), np.bincount(key, weights=ny)]) / count[:, None]
+    means, count = _vote_bins(nx, ny, bin_px_s)
     order = np.argsort(-count, kind="stable")
     d2 = min_separation_px_s ** 2
     n_frequent = (n + 1) // 2
@@ -164,15 +156,75 @@ def fast_sampling(
         if dist2[o] >= d2:
             taken.append(means[o])
             dist2 = np.minimum(dist2, ((means - means[o]) ** 2).sum(axis=1))
-    eligible = count >= min_votes
-    while len(taken) < n:  # farthest-point sampling, at most n - n_frequent rounds
+    taken += _farthest_bins(means, count >= min_votes, dist2, n - len(taken), d2)
+    return _translations(taken)
+
+
+def farthest_candidates(
+    nx: np.ndarray,
+    ny: np.ndarray,
+    taken: np.ndarray,
+    n: int,
+    bin_px_s: float,
+    min_separation_px_s: float,
+    min_votes: int = 3,
+) -> np.ndarray:
+    """Up to ``n`` more translation candidates: farthest-point sampling (as in
+    :func:`fast_sampling`) over the bins of the vectors (nx, ny) with ``min_votes``, away from
+    the translations ``taken`` (K, 2) px/s already chosen.
+
+    Fed with the nodes' own normal flows, this seeds a small fast object whose 1-ring
+    translations are unusable (its rings mix its nodes with the background's): a translating
+    object's normal flows n = (T . n_hat) n_hat lie on the circle through 0 and its translation
+    T, away from the background's, and a candidate among them, refitted to the nodes it takes
+    in the first round, can become the object's model.
+
+    Example:
+        >>> nx = np.r_[np.full(50, 100.0), [300.0, 301.0, 302.0], [-40.0]]
+        >>> ny = np.r_[np.zeros(50), [0.0, 1.0, 2.0], [0.0]]
+        >>> farthest_candidates(nx, ny, np.array([[100.0, 0.0]]), 2, 10.0, 40.0).round(1).tolist()
+        [[1.0, 0.0, 301.0, 1.0]]
+    """
+    if len(nx) == 0 or n < 1:
+        return np.empty((0, 4))
+    means, count = _vote_bins(nx, ny, bin_px_s)
+    dist2 = np.full(len(means), np.inf)
+    for t in np.asarray(taken, dtype=np.float64).reshape(-1, 2):  # a dozen candidates
+        dist2 = np.minimum(dist2, ((means - t) ** 2).sum(axis=1))
+    return _translations(_farthest_bins(means, count >= min_votes, dist2, n, min_separation_px_s ** 2))
+
+
+def _vote_bins(nx: np.ndarray, ny: np.ndarray, bin_px_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """Mean vector (B, 2) and vote count (B,) of each occupied square bin of ``bin_px_s``."""
+    nx = np.asarray(nx, dtype=np.float64)
+    ny = np.asarray(ny, dtype=np.float64)
+    ix = np.floor(nx / bin_px_s).astype(np.int64)
+    iy = np.floor(ny / bin_px_s).astype(np.int64)
+    ix -= ix.min()
+    iy -= iy.min()
+    _, key, count = np.unique(ix * (int(iy.max()) + 1) + iy, return_inverse=True, return_counts=True)
+    key = key.ravel()
+    means = np.column_stack([np.bincount(key, weights=nx), np.bincount(key, weights=ny)]) / count[:, None]
+    return means, count
+
+
+def _farthest_bins(means: np.ndarray, eligible: np.ndarray, dist2: np.ndarray, n: int, min_d2: float) -> list:
+    """Farthest-point sampling of up to ``n`` eligible bin means, each at least sqrt(min_d2)
+    from every point so far (``dist2``: squared distance of each bin to the nearest one)."""
+    out = []
+    while len(out) < n:  # at most n rounds
         score = np.where(eligible, dist2, -1.0)
         o = int(np.argmax(score))
-        if score[o] < d2:
+        if score[o] < min_d2:
             break
-        taken.append(means[o])
+        out.append(means[o])
         dist2 = np.minimum(dist2, ((means - means[o]) ** 2).sum(axis=1))
-    t = np.array(taken).reshape(-1, 2)
+    return out
+
+
+def _translations(t: list) -> np.ndarray:
+    """(K, 4) models (1, 0, t_x, t_y) of the translations ``t``."""
+    t = np.array(t).reshape(-1, 2)
     return np.column_stack([np.ones(len(t)), np.zeros(len(t)), t])
 
 

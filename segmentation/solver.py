@@ -55,8 +55,8 @@ from evseg.segmentation.energy import data_costs, energy, potts_weights
 from evseg.segmentation.expansion import alpha_expansion
 from evseg.segmentation.fitting import fit_lm
 from evseg.segmentation.initialization import (
-    consensus_models, fast_sampling, local_translations, motion_prediction, ring_agreement,
-    ring_noise,
+    consensus_models, farthest_candidates, fast_sampling, local_translations, motion_prediction,
+    ring_agreement, ring_noise,
 )
 from evseg.segmentation.motion_model import flow_field, model_change_px_s
 from evseg.segmentation.outputs import (
@@ -330,8 +330,12 @@ def sample_candidates(prepared: PreparedWindow, n: int) -> SampledCandidates:
     pw = prepared
     tic = time.perf_counter()
     bin_px_s = pw.config.sampling_bin * pw.sigma
-    sampled = fast_sampling(pw.vote_x[pw.voting], pw.vote_y[pw.voting], n, bin_px_s,
-                            pw.config.min_candidate_separation * pw.sigma)
+    separation = pw.config.min_candidate_separation * pw.sigma
+    sampled = fast_sampling(pw.vote_x[pw.voting], pw.vote_y[pw.voting], n, bin_px_s, separation)
+    if pw.config.n_sampled_normal > 0 and len(pw.graph):
+        extra = farthest_candidates(pw.graph.nx, pw.graph.ny, sampled[:, 2:], pw.config.n_sampled_normal,
+                                    bin_px_s, separation)
+        sampled = np.concatenate([sampled, extra])
     sampling_ms = (time.perf_counter() - tic) * 1e3
     tic = time.perf_counter()
     if len(pw.graph) == 0:

@@ -3,7 +3,7 @@
 import numpy as np
 
 from evseg.segmentation.initialization import (
-    fast_sampling, local_translations, motion_prediction, predict_boxes, ring_noise,
+    farthest_candidates, fast_sampling, local_translations, motion_prediction, predict_boxes, ring_noise,
 )
 from evseg.segmentation.motion_model import normal_flow_of
 from evseg.segmentation.preprocessing import delaunay_edges
@@ -84,6 +84,31 @@ def test_fast_sampling_frequent_and_far_candidates():
     assert np.all(d[~np.eye(len(c), dtype=bool)] >= 40.0)  # clearly different
     # deterministic
     np.testing.assert_array_equal(c, fast_sampling(v[:, 0], v[:, 1], 6, 20.0, 40.0))
+
+
+def test_farthest_candidates_find_a_translation_among_normal_flows():
+    """The normal flows of a translating disc, n = (T . n_hat) n_hat, lie on a circle through
+    0 and T, far from the background's: farthest-point sampling away from the background's
+    candidate returns a translation among them (nearer T than the background; the first
+    round's refit then moves it onto the disc's model); a lone flow never counts."""
+    rng = np.random.default_rng(2)
+    angles = np.linspace(0.0, 2.0 * np.pi, 120, endpoint=False)
+    normals = np.column_stack([np.cos(angles), np.sin(angles)])
+    t = np.array([250.0, -20.0])
+    disc = normals * (normals @ t)[:, None]  # n = (T . n_hat) n_hat
+    disc = disc[normals @ t > 0]
+    bg = rng.normal([90.0, 35.0], 5.0, (500, 2))
+    v = np.concatenate([bg, disc, [[-300.0, 300.0]]])
+    # bins of 4 sigma and a separation of 8 sigma for sigma = 15 px/s
+    c = farthest_candidates(v[:, 0], v[:, 1], np.array([[90.0, 35.0]]), 2, 60.0, 120.0)
+    assert 1 <= len(c) <= 2
+    np.testing.assert_allclose(c[:, :2], np.tile([1.0, 0.0], (len(c), 1)))
+    first = c[0, 2:]
+    assert np.hypot(*(first - t)) < 0.5 * np.hypot(*(first - [90.0, 35.0]))
+    on_circle = abs(np.hypot(*(first - t / 2.0)) - np.hypot(*t) / 2.0)  # circle with diameter 0-T
+    assert on_circle < 30.0  # within half a bin of the disc's normal flows
+    assert np.all(np.hypot(c[:, 2] + 300.0, c[:, 3] - 300.0) > 100.0)  # the lone flow
+    assert len(farthest_candidates(v[:, 0], v[:, 1], np.array([[90.0, 35.0]]), 0, 60.0, 120.0)) == 0
 
 
 def test_predict_boxes_moves_by_model_flow():

@@ -396,6 +396,22 @@ def test_precomputed_sampled_candidates_segment_exactly_like_computing_them(monk
         assert got.boxes == want.boxes and got.n_candidates == want.n_candidates
 
 
+def test_n_sampled_normal_adds_candidates_from_the_normal_flows():
+    """n_sampled_normal = k: round 0 gets up to k more sampled candidates, translations chosen
+    among the nodes' normal flows away from the other candidates; 0 leaves sampling as it was."""
+    from evseg.segmentation import prepare_window
+    from evseg.segmentation.solver import sample_candidates
+
+    s = synthetic_scene(n_flows=2000, n_objects=2, seed=5)
+    plain = sample_candidates(prepare_window(s.x, s.y, s.t, s.nx, s.ny, sensor_size=s.sensor_size), 6)
+    cfg = SegmentationConfig(n_sampled_normal=2)
+    more = sample_candidates(prepare_window(s.x, s.y, s.t, s.nx, s.ny, config=cfg, sensor_size=s.sensor_size), 6)
+    k = len(more.models) - len(plain.models)
+    assert 1 <= k <= 2
+    np.testing.assert_array_equal(more.models[: len(plain.models)], plain.models)
+    assert more.data.shape == (plain.data.shape[0], len(more.models))
+
+
 def test_a_still_camera_keeps_zero_motion_as_background():
     """Simulated static-camera scene (held-out seed, ground-truth normal flow): with the default
     settings the largest moving object is taken for the background and nothing is detected;
