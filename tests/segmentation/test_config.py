@@ -13,6 +13,9 @@ def test_presets_load():
         cfg = load_segmentation_config(name)
         assert isinstance(cfg, SegmentationConfig)
     assert load_segmentation_config("outdoor_like").cell_px == 4.0  # the YAML overrides the default 3
+    eed = load_segmentation_config("eed_like")
+    assert (eed.n_sampled_normal, eed.tracked_label_cost) == (2, 0.75)
+    assert SegmentationConfig().n_sampled_normal == 0
 
 
 def test_unknown_key_names_file_and_field(tmp_path):
@@ -40,6 +43,9 @@ def test_wrong_types_and_values(tmp_path):
         SegmentationConfig(cell_rule="latest")
     with pytest.raises(ConfigError, match="tracked_label_cost"):
         SegmentationConfig(tracked_label_cost=-0.5)
+    for field in ("occlusion_gap_px", "n_sampled_normal"):
+        with pytest.raises(ConfigError, match=field):
+            SegmentationConfig(**{field: -1})
     with pytest.raises(ConfigError, match="unknown segmentation preset"):
         load_segmentation_config("nope")
 
