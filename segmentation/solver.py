@@ -9,7 +9,8 @@ Order of the steps (our choice where the paper is silent):
 1. Nodes and Delaunay graph (:mod:`.preprocessing`).
 2. Candidates: motion prediction from the previous window's objects (and its background
    model), then fast sampling (``n_sampled``, or ``n_sampled_with_prediction`` when prediction
-   gave a candidate).
+   gave a candidate), plus ``n_sampled_normal`` farthest-point candidates over the nodes' own
+   normal flows (:func:`.initialization.farthest_candidates`).
 3. Round 0: every sampled candidate is fitted by LM to its voters (the nodes whose 1-ring
    translation fell within two sampling bins of it), then every node takes its cheapest
    candidate (no smoothness). A sampled candidate is a pure translation; its voters are the
@@ -37,7 +38,9 @@ Order of the steps (our choice where the paper is silent):
    which the EED ground truth counts as background - and joins label 0 (the model of label 0
    stays the largest cluster's). Finally every sizeable connected part of an object label is an
    object of its own (two objects moving alike share a model but are two objects;
-   :func:`.outputs.split_objects`), numbered by decreasing size; a label that falls apart into
+   :func:`.outputs.split_objects`; parts that both touch one other object, which hides the
+   middle of the one behind it, stay one object up to ``occlusion_gap_px`` apart), numbered by
+   decreasing size; a label that falls apart into
    more than ``max_object_parts`` far-apart parts is a scattered background layer and joins
    label 0.
 """
