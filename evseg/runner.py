@@ -37,6 +37,7 @@ class SegmentJob:
     threads: int | None = None
     overlap: bool = True
     worker: str = "auto"
+    min_track_windows: int = 1
     masks: bool = False
     video: Path | None = None
     frames: Path | None = None
@@ -59,6 +60,8 @@ def build_pipeline_config(job: SegmentJob):
         raise ConfigError(f"--window-ms must be positive, got {job.window_ms}")
     if not job.flow_context_ms >= 0:
         raise ConfigError(f"--flow-context-ms must be >= 0, got {job.flow_context_ms}")
+    if job.min_track_windows < 1:
+        raise ConfigError(f"--min-track-windows must be >= 1, got {job.min_track_windows}")
     seg = load_segmentation_config(job.config) if job.config else SegmentationConfig()
     return PipelineConfig(
         window_us=int(round(job.window_ms * 1000)),
@@ -69,6 +72,7 @@ def build_pipeline_config(job: SegmentJob):
         threads=job.threads,
         overlap=job.overlap,
         worker="process" if job.worker == "auto" else job.worker,  # auto: see run_segment_job
+        min_track_windows=job.min_track_windows,
         segmentation=seg,
     )
 

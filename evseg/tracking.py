@@ -4,7 +4,8 @@ The segmentation numbers IMOs 1..K afresh in every window. To give users stable 
 tracked object's box is moved to the next window (by the caller, with the object's motion
 model) and matched one to one to the new IMO boxes by IoU (Hungarian). A matched IMO keeps
 the track's id; an unmatched IMO starts a new id; a track unmatched for ``max_missed``
-windows is dropped.
+windows is dropped. Each track counts the windows it was found in (``hits``), so a caller can
+report an object only once it has been seen more than once (SORT's ``min_hits``).
 """
 
 from __future__ import annotations
@@ -48,6 +49,7 @@ class ObjectTracker:
     Attributes:
         min_iou: smallest IoU between a predicted track box and a new box to keep the id.
         max_missed: windows a track survives without a match.
+        hits: id -> number of windows in which the track was found (matched or new).
     """
 
     min_iou: float = 0.1
@@ -55,6 +57,7 @@ class ObjectTracker:
     next_id: int = 1
     tracks: dict[int, Box] = field(default_factory=dict)  # id -> box predicted for this window
     missed: dict[int, int] = field(default_factory=dict)
+    hits: dict[int, int] = field(default_factory=dict)
 
     def update(self, boxes: dict[int, Box]) -> dict[int, int]:
         """Match this window's IMO boxes (label -> box) to tracks; return label -> object id.
@@ -83,9 +86,11 @@ class ObjectTracker:
                 if self.missed[t] > self.max_missed:
                     self.tracks.pop(t)
                     self.missed.pop(t)
+                    self.hits.pop(t, None)
         for l, oid in mapping.items():
             self.tracks[oid] = boxes[l]
             self.missed[oid] = 0
+            self.hits[oid] = self.hits.get(oid, 0) + 1
         return mapping
 
     def predict(self, displacement: dict[int, tuple[float, float]], sensor_size: tuple[int, int] | None = None) -> None:

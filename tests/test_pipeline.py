@@ -325,6 +325,41 @@ def test_a_worker_process_that_dies_is_a_clear_error_and_the_next_run_starts_a_n
         assert [r.index for r in pipe.run(short_stream)] == [0, 1, 2, 3, 4]
 
 
+def test_min_track_windows_reports_an_object_from_its_second_window(sim):
+    """min_track_windows=2: the first window's objects are not reported (their events are
+    background, no box); from the next window on the same tracks appear with the same ids and
+    labels as without the rule, and the segmentation itself is unchanged."""
+    rec, d = sim
+    flow = load_flow_file(d / "flow.npz", n_events=len(rec.stream))
+    plain = _run(rec, flow)
+    pipe = MotionSegmentationPipeline(PipelineConfig(flow="precomputed", min_track_windows=2),
+                                      sensor_size=rec.stream.sensor_size)
+    late = list(pipe.run(rec.stream, precomputed_flow=flow))
+    assert plain[0].boxes and late[0].boxes == {}
+    first = plain[0].labels
+    np.testing.assert_array_equal(late[0].labels, np.where(first > 0, 0, first))
+    seen = set(plain[0].boxes)
+    for p, q in zip(plain[1:], late[1:]):
+        np.testing.assert_array_equal(p.segmentation.node_labels, q.segmentation.node_labels)
+        shown = {oid for oid in p.boxes if oid in seen}  # tracks found in an earlier window
+        assert set(q.boxes) == shown
+        keep = np.isin(p.labels, list(shown)) | (p.labels <= 0)
+        np.testing.assert_array_equal(q.labels, np.where(keep, p.labels, 0))
+        seen |= set(p.boxes)
+
+
+@pytest.mark.parametrize("bad", [0, -1, 1.5])
+def test_bad_min_track_windows_is_a_config_error(bad, sim, tmp_path, capsys):
+    with pytest.raises(ConfigError, match="min_track_windows"):
+        PipelineConfig(min_track_windows=bad)
+    rec, d = sim
+    if isinstance(bad, int):
+        assert main(["segment", str(d / "sim.npz"), "--flow", str(d / "flow.npz"), "--out",
+                     str(tmp_path / "r.npz"), "--min-track-windows", str(bad), "--no-progress"]) != 0
+        assert "--min-track-windows must be >= 1" in capsys.readouterr().err
+        assert not (tmp_path / "r.npz").exists()
+
+
 def test_unknown_worker_is_a_config_error():
     with pytest.raises(ConfigError, match="pipeline.worker must be one of thread, process, got 'gpu'"):
         PipelineConfig(worker="gpu")

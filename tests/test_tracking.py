@@ -23,3 +23,17 @@ def test_new_object_gets_new_id_and_lost_track_expires():
     assert tr.update({1: (80, 80, 89, 89)}) == {1: 2}
     tr.update({})
     assert 1 not in tr.tracks and 2 in tr.tracks
+
+
+def test_hits_count_the_windows_a_track_was_found_in():
+    """A track missed for a window keeps its count; a dropped track's count goes with it."""
+    tr = ObjectTracker(max_missed=1)
+    tr.update({1: (0, 0, 9, 9)})
+    assert tr.hits == {1: 1}
+    tr.update({})  # missed once: kept
+    tr.update({3: (0, 0, 9, 9)})
+    assert tr.hits == {1: 2}
+    tr.update({1: (80, 80, 89, 89)})  # a new object; track 1 missed
+    assert tr.hits == {1: 2, 2: 1}
+    tr.update({1: (80, 80, 89, 89)})  # track 1 missed twice: dropped
+    assert tr.hits == {2: 2}

@@ -43,6 +43,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="where the overlapped flow and preparation run: a child process "
                         "(beside the segmentation, ~1.5 s to start) or a thread of this one; "
                         "auto: the thread for recordings known to be shorter than 5 s")
+    p.add_argument("--min-track-windows", type=int, default=1,
+                   help="report an object once its track was found in this many windows "
+                        "(2: fewer false objects, each object reported one window later)")
     p.add_argument("--masks", action="store_true", help="also store dense object masks in the result")
     p.add_argument("--video", type=Path, default=None, help="write an overlay video (.mp4)")
     p.add_argument("--frames", type=Path, default=None, help="write one overlay PNG per window here")
@@ -70,6 +73,7 @@ def run(args: argparse.Namespace) -> int:
         threads=args.threads,
         overlap=not args.no_overlap,
         worker=args.worker,
+        min_track_windows=args.min_track_windows,
         masks=args.masks,
         video=args.video,
         frames=args.frames,
