@@ -76,11 +76,12 @@ def evaluate_recording(rec, config, keep_results: bool = False) -> RecordingEval
     return RecordingEvaluation(scores, results, ae, float(np.median(times) * 1e3) if times else float("nan"))
 
 
-def evaluate_pipeline(quick: bool = False, flow: str = "learned") -> list[dict]:
+def evaluate_pipeline(quick: bool = False, flow: str = "learned", **pipeline_options) -> list[dict]:
     """The simulated benchmark suite: one row per scene, then one mean row per preset and overall.
 
     Full: 8 seeds x (eed_like, evimo_like, driving_like) + 8 ego-motion-only scenes, 300 ms
-    each, 10 ms windows. Quick: 2 seeds per preset, 100 ms.
+    each, 10 ms windows. Quick: 2 seeds per preset, 100 ms. ``pipeline_options``: further
+    :class:`~evseg.pipeline.PipelineConfig` fields (e.g. ``min_track_windows=2``).
     """
     from evseg.pipeline import PipelineConfig
     from evseg.segmentation import load_segmentation_config
@@ -93,7 +94,8 @@ def evaluate_pipeline(quick: bool = False, flow: str = "learned") -> list[dict]:
     for preset in presets:
         for seed in seeds:
             rec = simulate(load_scene_preset(preset), seed=seed, duration_us=duration_us)
-            cfg = PipelineConfig(flow=flow, segmentation=load_segmentation_config(SEGMENTATION_PRESET[preset]))
+            cfg = PipelineConfig(flow=flow, segmentation=load_segmentation_config(SEGMENTATION_PRESET[preset]),
+                                 **pipeline_options)
             ev = evaluate_recording(rec, cfg)
             s = summarize(ev.scores)
             per_preset.setdefault(preset, []).extend(ev.scores)
