@@ -437,3 +437,12 @@ def test_eval_static_compares_the_settings_on_still_camera_scenes(tmp_path):
     for f, gain in (("ground-truth", 50), ("learned", 25)):
         assert rows[f"{f} flow, static_camera settings"]["detection rate %"] > \
             rows[f"{f} flow, default settings"]["detection rate %"] + gain
+
+
+def test_evaluate_pipeline_passes_pipeline_options_on():
+    """evaluate_pipeline(**options) builds each scene's PipelineConfig with them (checked by the
+    config: a bad value fails at the first scene, before any segmentation)."""
+    from evseg.pipeline_eval import evaluate_pipeline
+
+    with pytest.raises(ConfigError, match="min_track_windows"):
+        evaluate_pipeline(quick=True, min_track_windows=0)
