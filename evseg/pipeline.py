@@ -493,7 +493,7 @@ class MotionSegmentationPipeline:
             # window's events cross to it once. Window t + 1 is submitted before window t is
             # segmented: the tracks guess its candidate count.
             run_id = next(_RUN_IDS)
-            history = EventHistory(0)  # not needed here
+            history = EventHistory(0)  # the worker holds the context: no copies kept here
             self._waited_s = 0.0
             submit = lambda window, context: pool.submit(  # noqa: E731
                 _prepare_in_worker, window, run_id, self._worker_sample_counts())

@@ -100,12 +100,11 @@ def split_objects(
     m = len(labels)
     if len(models) <= 1 or m == 0:
         return labels.copy(), np.asarray(models).reshape(-1, 4).copy(), {}
-    comp = same_label_components(labels, np.ascontiguousarray(np.asarray(edges, dtype=np.int64).reshape(-1, 2)))
+    edges = np.ascontiguousarray(np.asarray(edges, dtype=np.int64).reshape(-1, 2))
+    comp = same_label_components(labels, edges)
     if gap_px > 0 and x is not None:
         comp = _join_near_components(comp, labels, np.asarray(x, dtype=np.float64),
-                                     np.asarray(y, dtype=np.float64), gap_px,
-                                     np.asarray(edges, dtype=np.int64).reshape(-1, 2), occlusion_gap_px,
-                                     min_nodes)
+                                     np.asarray(y, dtype=np.float64), gap_px, edges, occlusion_gap_px, min_nodes)
     parts = []  # (size, label, component id)
     layer = []  # labels scattered into more than max_parts parts
     fragments = {}  # label -> (component ids that stay with its largest part)
@@ -138,7 +137,7 @@ def split_objects(
         frag = (labels == k) & np.isin(comp, small)
         new_labels[frag] = part_label[(k, main)]
     if isolated_out and gap_px > 0 and x is not None and regions:
-        regions = _without_isolated(regions, m, np.asarray(edges, dtype=np.int64).reshape(-1, 2),
+        regions = _without_isolated(regions, m, edges,
                                     np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64), gap_px)
     return new_labels, np.array(new_models).reshape(-1, 4), regions
 
