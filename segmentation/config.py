@@ -168,6 +168,15 @@ class SegmentationConfig:
     small fast object whose 1-rings mix its nodes with the background's gets no usable
     translation vote, but its normal flows lie apart from the background's, around its
     translation (0 = off; the ``eed_like`` preset uses 2)."""
+    round0_refits: int = 2
+    """Round 0: after every node took its cheapest candidate, refit each candidate that
+    explains at most ``round0_refit_max_nodes`` nodes to the nodes that took it, this many
+    times (nodes no candidate explains left out). A small object that moves unlike a
+    translation (a spinning or zooming ball) gets a few voters only, whose fit explains part of
+    it; each refit on the nodes it explains grows it to the whole object before the label cost
+    can delete it (0 = off)."""
+    round0_refit_max_nodes: int = 48
+    """See ``round0_refits``: larger candidates keep their fit to their voters."""
     n_resampled: int = 4
     """Round 0b: at most this many extra candidates, fitted to the largest connected regions of
     nodes no fitted candidate explains (0 = off)."""
@@ -249,7 +258,8 @@ class SegmentationConfig:
         _check_choice("sampling_flow", self.sampling_flow, SAMPLING_FLOWS)
         _check_choice("uncertainty_use", self.uncertainty_use, UNCERTAINTY_USES)
         _check_choice("cell_rule", self.cell_rule, CELL_RULES)
-        for name in ("n_resampled", "n_sampled_normal", "cell_px", "min_flow_px_s", "residual_scale_px_s",
+        for name in ("n_resampled", "round0_refits", "round0_refit_max_nodes", "n_sampled_normal", "cell_px",
+                     "min_flow_px_s", "residual_scale_px_s",
                      "residual_scale_rel", "residual_scale_noise", "lambda_p", "lambda_m",
                      "lm_damping", "mask_dilate_px", "merge_tol", "split_gap_px", "occlusion_gap_px",
                      "uncertainty_gain", "affine_prior_px", "max_object_parts",
