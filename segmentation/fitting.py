@@ -130,7 +130,11 @@ def _robust(z: torch.Tensor, loss: str, trunc: float) -> tuple[torch.Tensor, tor
 
 def _q_of(p: np.ndarray) -> np.ndarray:
     """(L, 4) linear parameters q = (rho cos theta - 1, rho sin theta, t_x, t_y) of models p."""
-    return np.column_stack([p[:, 0] * np.cos(p[:, 1]) - 1.0, p[:, 0] * np.sin(p[:, 1]), p[:, 2], p[:, 3]])
+    q = np.empty((len(p), 4))  # not column_stack: its checks cost more than the math here
+    q[:, 0] = p[:, 0] * np.cos(p[:, 1]) - 1.0
+    q[:, 1] = p[:, 0] * np.sin(p[:, 1])
+    q[:, 2:] = p[:, 2:]
+    return q
 
 
 @_fit_threads
