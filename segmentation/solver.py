@@ -19,7 +19,8 @@ Order of the steps (our choice where the paper is silent):
    object's motion is far from a translation (a spinning, zooming ball), its voters are a few
    of its nodes and their fit explains only part of it: ``round0_refits`` times, every
    candidate that explains ``min_object_nodes`` to ``round0_refit_max_nodes`` nodes is
-   refitted to them and the nodes choose again, which grows it over the whole object.
+   refitted to them and the nodes choose again, which grows it over the whole object (a
+   refit after which the candidate explains no more nodes than before is undone).
    Round 0b: the nodes that no fitted candidate explains (data cost at the truncation) that
    form connected regions of the graph (at least ``min_object_nodes``; the ``n_resampled``
    largest) each give one more candidate: the best of 64 exact fits to 4 random nodes of the
@@ -551,10 +552,22 @@ def segment_prepared(
             on = explained & (index[labels] >= 0)
             new = fit_lm(xr[on], yr[on], graph.nx[on], graph.ny[on], index[labels[on]], models[small],
                          **{**lm_kw, "weights": fit_w[on], "iterations": ROUND0_REFIT_ITERATIONS})
+            before_models, before_data = models, data
             models, data = models.copy(), data.copy()
             models[small] = new
             data[:, small] = costs(new)
             labels = np.argmin(data, axis=1)
+            # A refit is kept only where the candidate now explains more nodes: growing over an
+            # object is its purpose, while one that does not grow was fitted to its nodes already
+            # and a refit only sharpens it on their noise (real one-motion recordings: windows
+            # with a false object 16.8 -> 19.5 % without this rule; simulated scenes unchanged).
+            explained = data[ar, labels] < 0.99 * cfg.truncation ** 2 * conf
+            n_now = np.bincount(labels[explained], minlength=len(models))
+            back = small[n_now[small] <= n_explained[small]]
+            if len(back):
+                models[back] = before_models[back]
+                data[:, back] = before_data[:, back]
+                labels = np.argmin(data, axis=1)
         models, data, labels, h = _merge_duplicates(models, data, labels, h, cfg.merge_tol * sigma,
                                                     radius, graph.edges, edge_w)
         if cfg.n_resampled > 0:
