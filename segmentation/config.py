@@ -171,11 +171,11 @@ class SegmentationConfig:
     round0_refits: int = 2
     """Round 0: after every node took its cheapest candidate, refit each candidate that
     explains at least ``min_object_nodes`` and at most ``round0_refit_max_nodes`` nodes to the
-    nodes that took it, this many times (nodes no candidate explains left out); a refit is
-    kept only where the candidate then explains more nodes than before. A small object that moves unlike a
-    translation (a spinning or zooming ball) gets a few voters only, whose fit explains part of
-    it; each refit on the nodes it explains grows it to the whole object before the label cost
-    can delete it (0 = off)."""
+    nodes that took it, this many times (nodes no candidate explains left out); a refit is kept
+    only where the candidate then explains more nodes than before. A small object that moves
+    unlike a translation (a spinning or zooming ball) gets a few voters only, whose fit explains
+    part of it; each refit on the nodes it explains grows it to the whole object before the
+    label cost can delete it (0 = off)."""
     round0_refit_max_nodes: int = 48
     """See ``round0_refits``: larger candidates keep their fit to their voters."""
     n_resampled: int = 4

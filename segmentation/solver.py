@@ -534,40 +534,8 @@ def segment_prepared(
         # for it (sample_candidates), then every node takes its cheapest candidate.
         data = np.concatenate([costs(predicted), sampled.data], axis=1)
         labels = np.argmin(data, axis=1)
-        for _ in range(cfg.round0_refits):
-            # Only candidates that explain few nodes: a large one's fit to its voters is already
-            # sound, and refitting it to its nodes turns depth bands of a background into labels
-            # of their own (learned flow, validation: false objects 13.7 -> 18.7 %).
-            # Candidates explaining fewer than min_object_nodes nodes are left alone: most are
-            # stray, and refitting them cost ~1 ms per window for nothing.
-            explained = data[ar, labels] < 0.99 * cfg.truncation ** 2 * conf
-            n_explained = np.bincount(labels[explained], minlength=len(models))
-            small = np.flatnonzero((n_explained >= max(cfg.min_object_nodes, 1))
-                                   & (n_explained <= cfg.round0_refit_max_nodes))
-            if not len(small):
-                break
-            # Fit and cost only the small candidates, on their own nodes (a few dozen each).
-            index = np.full(len(models), -1, dtype=np.int64)
-            index[small] = np.arange(len(small))
-            on = explained & (index[labels] >= 0)
-            new = fit_lm(xr[on], yr[on], graph.nx[on], graph.ny[on], index[labels[on]], models[small],
-                         **{**lm_kw, "weights": fit_w[on], "iterations": ROUND0_REFIT_ITERATIONS})
-            before_models, before_data = models, data
-            models, data = models.copy(), data.copy()
-            models[small] = new
-            data[:, small] = costs(new)
-            labels = np.argmin(data, axis=1)
-            # A refit is kept only where the candidate now explains more nodes: growing over an
-            # object is its purpose, while one that does not grow was fitted to its nodes already
-            # and a refit only sharpens it on their noise (real one-motion recordings: windows
-            # with a false object 16.8 -> 19.5 % without this rule; simulated scenes unchanged).
-            explained = data[ar, labels] < 0.99 * cfg.truncation ** 2 * conf
-            n_now = np.bincount(labels[explained], minlength=len(models))
-            back = small[n_now[small] <= n_explained[small]]
-            if len(back):
-                models[back] = before_models[back]
-                data[:, back] = before_data[:, back]
-                labels = np.argmin(data, axis=1)
+        if cfg.round0_refits:
+            models, data, labels = _round0_refits(models, data, labels, pw, lm_kw, costs)
         models, data, labels, h = _merge_duplicates(models, data, labels, h, cfg.merge_tol * sigma,
                                                     radius, graph.edges, edge_w)
         if cfg.n_resampled > 0:
@@ -664,6 +632,53 @@ def segment_prepared(
         sensor_size=None if sensor_size is None else (int(sensor_size[0]), int(sensor_size[1])),
         timings=timings, max_propagation_px=pw.max_propagation_px,
     )
+
+
+def _round0_refits(models, data, labels, pw: PreparedWindow, lm_kw, costs):
+    """Round 0's refits of the small candidates (``SegmentationConfig.round0_refits``, module
+    docstring step 3): models, data and argmin labels after them."""
+    cfg = pw.config
+    ar = np.arange(len(labels))
+    cap = 0.99 * cfg.truncation ** 2 * pw.conf  # a node's data cost at the truncation
+
+    def explained_counts(data, labels):
+        explained = data[ar, labels] < cap
+        return explained, np.bincount(labels[explained], minlength=len(models))
+
+    for _ in range(cfg.round0_refits):
+        # Only candidates that explain few nodes: a large one's fit to its voters is already
+        # sound, and refitting it to its nodes turns depth bands of a background into labels of
+        # their own (learned flow, validation: false objects 13.7 -> 18.7 %). Those explaining
+        # fewer than min_object_nodes are mostly stray and are left alone (each LM call costs
+        # ~0.1 ms per iteration however few its nodes).
+        explained, n_before = explained_counts(data, labels)
+        small = np.flatnonzero((n_before >= max(cfg.min_object_nodes, 1))
+                               & (n_before <= cfg.round0_refit_max_nodes))
+        if not len(small):
+            break
+        # Fit and cost only the small candidates, on their own nodes (a few dozen each).
+        index = np.full(len(models), -1, dtype=np.int64)
+        index[small] = np.arange(len(small))
+        on = explained & (index[labels] >= 0)
+        new = fit_lm(pw.xr[on], pw.yr[on], pw.graph.nx[on], pw.graph.ny[on], index[labels[on]],
+                     models[small], **{**lm_kw, "weights": pw.fit_w[on],
+                                       "iterations": ROUND0_REFIT_ITERATIONS})
+        refit_models, refit_data = models.copy(), data.copy()
+        refit_models[small] = new
+        refit_data[:, small] = costs(new)
+        refit_labels = np.argmin(refit_data, axis=1)
+        # A refit is kept only where the candidate now explains more nodes: growing over an
+        # object is its purpose, while one that does not grow was fitted to its nodes already and
+        # a refit only sharpens it on their noise (real one-motion recordings: windows with a
+        # false object 16.8 -> 19.5 % without this rule; simulated scenes unchanged).
+        _, n_after = explained_counts(refit_data, refit_labels)
+        back = small[n_after[small] <= n_before[small]]
+        if len(back):
+            refit_models[back] = models[back]
+            refit_data[:, back] = data[:, back]
+            refit_labels = np.argmin(refit_data, axis=1)
+        models, data, labels = refit_models, refit_data, refit_labels
+    return models, data, labels
 
 
 ROUND0_REFIT_ITERATIONS = 2
