@@ -466,3 +466,25 @@ def test_round0_refits_grow_a_few_voters_fit_over_a_spinning_ball():
     assert np.mean(r.node_labels[ball] == 1) > 0.9
     shape = rec.stream.sensor_size[::-1]
     assert mask_iou(box_to_mask(r.boxes[1], shape), box_to_mask(truth, shape)) > 0.9
+
+
+def test_round0_refit_that_does_not_grow_its_candidate_is_undone():
+    """A candidate 1.5 px/s off its object's motion already explains every node of the object,
+    so refitting it moves it but cannot grow it: the refit is undone and the model comes back
+    bit for bit (refits exist to grow, not to sharpen a candidate on the nodes it has)."""
+    from evseg.segmentation.solver import _costs, _lm_kwargs, _round0_refits, prepare_window
+
+    s = synthetic_scene(n_flows=4000, n_objects=1, seed=2, radius_px=(10.0, 10.0))
+    pw = prepare_window(s.x, s.y, s.t, s.nx, s.ny, config=SegmentationConfig(residual_scale_px_s=2.0),
+                        sensor_size=s.sensor_size)
+    costs = lambda m: _costs(pw, m)  # noqa: E731
+    start = s.models.copy()
+    start[1, 2] += 1.5  # px/s: within the residual scale's reach of every object node
+    data = costs(start)
+    labels = np.argmin(data, axis=1)
+    n_object = int((labels == 1).sum())
+    assert 6 <= n_object <= 48  # a small candidate: the refit is tried
+    assert n_object == int((s.label[pw.graph.index] == 1).sum())  # all of the object already
+    models, data_after, labels_after = _round0_refits(start, data, labels, pw, _lm_kwargs(pw), costs)
+    assert np.array_equal(models, start)
+    assert np.array_equal(data_after, data) and np.array_equal(labels_after, labels)
