@@ -340,11 +340,3 @@ def labels_of_nearest(node_labels: np.ndarray, nearest: np.ndarray) -> np.ndarra
     hit = nearest >= 0
     out[hit] = np.asarray(node_labels, dtype=np.int64)[nearest[hit]]
     return out
-    # Buckets of a third of the search radius: a query scans at most 5 rings of cells.
-    bucket = max(float(max_distance_px) / 3.0, 1.0)
-    idx = grid_nearest(np.ascontiguousarray(node_x, dtype=np.float64),
-                       np.ascontiguousarray(node_y, dtype=np.float64), x, y,
-                       float(max_distance_px), bucket)
-    hit = idx >= 0
-    out[hit] = np.asarray(node_labels, dtype=np.int64)[idx[hit]]
-    return out
