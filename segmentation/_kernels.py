@@ -317,3 +317,49 @@ def same_label_components(labels, edges):  # pragma: no cover
             n += 1
         comp[k] = root_id[r]
     return comp
+
+
+@njit(cache=True, nogil=True)
+def labeling_energy(labels, data, edges, edge_w, label_costs):  # pragma: no cover
+    """Energy of a labeling in one pass: sum_k data[k, L_k] + the weights of the edges whose
+    ends differ + the costs of the labels in use (:func:`evseg.segmentation.energy.energy`).
+    NaN when a label lies outside [0, L) or an edge end outside [0, M)."""
+    m = labels.shape[0]
+    n_labels = label_costs.shape[0]
+    d = 0.0
+    used = np.zeros(n_labels, dtype=np.bool_)
+    for k in range(m):
+        lab = labels[k]
+        if lab < 0 or lab >= n_labels:
+            return np.nan
+        d += data[k, lab]
+        used[lab] = True
+    p = 0.0
+    for e in range(edges.shape[0]):
+        i = edges[e, 0]
+        j = edges[e, 1]
+        if i < 0 or i >= m or j < 0 or j >= m:
+            return np.nan
+        if labels[i] != labels[j]:
+            p += edge_w[e]
+    h = 0.0
+    for lab in range(n_labels):
+        if used[lab]:
+            h += label_costs[lab]
+    return d + p + h
+
+
+@njit(cache=True, nogil=True)
+def label_bound_sums(labels, bound, n_labels):  # pragma: no cover
+    """Per label: node count, sum of ``bound`` and sum of min(``bound``, 0) over its nodes, in
+    node order (the sums ``np.bincount(labels, weights=...)`` gives)."""
+    count = np.zeros(n_labels, dtype=np.int64)
+    whole = np.zeros(n_labels)
+    part = np.zeros(n_labels)
+    for k in range(labels.shape[0]):
+        lab = labels[k]
+        count[lab] += 1
+        whole[lab] += bound[k]
+        if bound[k] < 0.0:
+            part[lab] += bound[k]
+    return count, whole, part

@@ -42,7 +42,7 @@ from dataclasses import dataclass
 import maxflow
 import numpy as np
 
-from evseg.segmentation._kernels import expansion_terms
+from evseg.segmentation._kernels import expansion_terms, label_bound_sums
 from evseg.segmentation.energy import energy
 
 
@@ -86,15 +86,17 @@ ENUMERATED_STAR_MIN_NODES = 500
 1 M events/s benchmark stream); on 52 k-node windows it made the expansion moves 5x faster."""
 
 
-def _cut(labels: np.ndarray, alpha: int, terms: tuple, label_costs: np.ndarray) -> np.ndarray:
-    """Build the move's graph from its terms (:func:`._kernels.expansion_terms`), cut it."""
+def _cut(labels: np.ndarray, alpha: int, terms: tuple, label_costs: np.ndarray,
+         sums: tuple | None = None) -> np.ndarray:
+    """Build the move's graph from its terms (:func:`._kernels.expansion_terms`), cut it.
+    ``sums``: :func:`._kernels.label_bound_sums` of the labels and the terms' bound, if known."""
     diff, pair_i, pair_j, pair_w, bound = terms
     m = len(labels)
     n_labels = len(label_costs)
-    count = np.bincount(labels, minlength=n_labels)
+    count, whole, _ = label_bound_sums(labels, bound, n_labels) if sums is None else sums
     others = np.flatnonzero((count > 0) & (label_costs > 0) & (np.arange(n_labels) != alpha))
     if len(others):
-        others = others[_label_cost_can_matter(labels, bound, label_costs, others)]
+        others = others[_label_cost_can_matter(whole, label_costs, others)]
     # The largest stars are enumerated (module docstring), the rest built.
     enumerated = others[np.argsort(-count[others], kind="stable")][:MAX_ENUMERATED_STARS]
     enumerated = np.sort(enumerated[count[enumerated] >= ENUMERATED_STAR_MIN_NODES])
@@ -160,9 +162,10 @@ def _move_energy(switch, labels, terms, label_costs, others):
 
 
 def _label_cost_can_matter(
-    labels: np.ndarray, bound: np.ndarray, label_costs: np.ndarray, candidates: np.ndarray,
+    per_label: np.ndarray, label_costs: np.ndarray, candidates: np.ndarray,
 ) -> np.ndarray:
-    """Which of the ``candidates`` labels need their label-cost node in this move (bool mask).
+    """Which of the ``candidates`` labels need their label-cost node in this move (bool mask);
+    ``per_label`` = the sum of ``bound`` over each label's nodes.
 
     Label l's auxiliary node only rewards moves that switch *all* of l's nodes to alpha.
     Switching them costs at least sum_{k in l} d_k, d_k = ``bound[k]`` = D[k, alpha] - D[k, l]
@@ -171,7 +174,6 @@ def _label_cost_can_matter(
     energy without l's node is also a minimiser with it, so the node (joined to every node of
     l: a star that made each max-flow ~6x slower) can be left out and the move stays optimal.
     """
-    per_label = np.bincount(labels, weights=bound, minlength=len(label_costs))
     return per_label[candidates] < label_costs[candidates]
 
 
@@ -197,17 +199,21 @@ def move_cannot_improve(
     sum_l min(sum_{k in l} bound_k - h_l, sum_{k in l} min(bound_k, 0)) (+ h_alpha if alpha is
     unused); when that is >= 0 no move lowers the energy and the max-flow can be skipped.
     """
-    labels = np.asarray(labels, dtype=np.int64)
-    rows = np.flatnonzero(labels != alpha)
-    if len(rows) == 0:
+    label_costs = np.asarray(label_costs, dtype=np.float64)
+    sums = label_bound_sums(np.ascontiguousarray(labels, dtype=np.int64),
+                            np.ascontiguousarray(bound, dtype=np.float64), len(label_costs))
+    return _cannot_improve(alpha, label_costs, sums)
+
+
+def _cannot_improve(alpha: int, label_costs: np.ndarray, sums: tuple) -> bool:
+    """:func:`move_cannot_improve` from the per-label sums (:func:`._kernels.label_bound_sums`)."""
+    count, whole, part = sums
+    present = count > 0
+    present[alpha] = False  # alpha's own nodes cannot switch
+    if not present.any():
         return True
-    n_labels = len(label_costs)
-    lab, d = labels[rows], np.asarray(bound, dtype=np.float64)[rows]
-    whole = np.bincount(lab, weights=d, minlength=n_labels) - label_costs
-    part = np.bincount(lab, weights=np.minimum(d, 0.0), minlength=n_labels)
-    present = np.bincount(lab, minlength=n_labels) > 0
-    least = float(np.minimum(whole, part)[present].sum())
-    if len(rows) == len(labels):  # alpha not in use: any switch pays its label cost
+    least = float(np.minimum(whole - label_costs, part)[present].sum())
+    if count[alpha] == 0:  # alpha not in use: any switch pays its label cost
         least += float(label_costs[alpha])
     return least >= 0.0
 
@@ -250,9 +256,10 @@ def alpha_expansion(
         improved = False
         for alpha in order:
             terms = expansion_terms(cur, int(alpha), data, edges, edge_w)
-            if move_cannot_improve(cur, int(alpha), terms[4], label_costs):
+            sums = label_bound_sums(cur, terms[4], n_labels)
+            if _cannot_improve(int(alpha), label_costs, sums):
                 continue
-            new = _cut(cur, int(alpha), terms, label_costs)
+            new = _cut(cur, int(alpha), terms, label_costs, sums)
             n_moves += 1
             if np.array_equal(new, cur):
                 continue

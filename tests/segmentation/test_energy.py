@@ -1,0 +1,45 @@
+"""The segmentation energy: exact values by hand and by its definition, and clear errors."""
+
+import numpy as np
+import pytest
+
+from evseg.segmentation.energy import energy, label_cost_energy, potts_energy
+
+
+def test_energy_by_hand():
+    # Node 0 takes label 0 (data 0), node 1 label 1 (data 1); their edge is cut (0.5); both
+    # labels are in use (10 + 4).
+    data = np.array([[0.0, 2.0], [3.0, 1.0]])
+    assert energy(np.array([0, 1]), data, np.array([[0, 1]]), np.array([0.5]), np.array([10.0, 4.0])) == 15.5
+    # One label for both: data 0 + 3, no cut, one label cost.
+    assert energy(np.array([0, 0]), data, np.array([[0, 1]]), np.array([0.5]), np.array([10.0, 4.0])) == 13.0
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_energy_is_data_plus_potts_plus_label_costs(seed):
+    rng = np.random.default_rng(seed)
+    m, n_labels, n_edges = 200, 6, 500
+    data = rng.uniform(0, 9, (m, n_labels))
+    labels = rng.integers(0, n_labels - 1, m)  # the last label unused
+    edges = rng.integers(0, m, (n_edges, 2))
+    w = rng.uniform(0, 2, n_edges)
+    h = rng.uniform(0, 80, n_labels)
+    expected = data[np.arange(m), labels].sum() + potts_energy(labels, edges, w) + label_cost_energy(labels, h)
+    # Summation order differs from numpy's pairwise sums: equal to round-off.
+    assert energy(labels, data, edges, w, h) == pytest.approx(expected, rel=1e-12)
+
+
+@pytest.mark.parametrize("bad, message", [
+    (dict(labels=np.array([0, 2])), "labels must lie in \\[0, 2\\)"),
+    (dict(labels=np.array([-1, 0])), "got labels in \\[-1, 0\\]"),
+    (dict(edges=np.array([[0, 5]])), "edge ends in \\[0, 5\\]"),
+    (dict(edge_w=np.array([0.5, 1.0])), "1 edges, 2 edge weights"),
+    (dict(label_costs=np.array([1.0])), "data \\(2, 2\\)"),
+    (dict(data=np.array([[0.0, np.nan], [3.0, 1.0]]), labels=np.array([1, 1])), "NaN in the data costs"),
+])
+def test_energy_rejects_inconsistent_input(bad, message):
+    args = dict(labels=np.array([0, 1]), data=np.array([[0.0, 2.0], [3.0, 1.0]]), edges=np.array([[0, 1]]),
+                edge_w=np.array([0.5]), label_costs=np.array([10.0, 4.0]))
+    args.update(bad)
+    with pytest.raises(ValueError, match=message):
+        energy(**args)
