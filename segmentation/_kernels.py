@@ -363,3 +363,68 @@ def label_bound_sums(labels, bound, n_labels):  # pragma: no cover
         if bound[k] < 0.0:
             part[lab] += bound[k]
     return count, whole, part
+
+
+@njit(cache=True, nogil=True)
+def lm_steps(p, hq, gq, mu):  # pragma: no cover
+    """Levenberg-Marquardt step of every label's (rho, theta, t_x, t_y) from its normal
+    equations in q = (rho cos theta - 1, rho sin theta, t_x, t_y) (:func:`.fitting.fit_lm`).
+
+    With T = dq / dp (identity on t_x, t_y): H = T^T Hq T, g = T^T gq, and the step solves
+    (H + diag(mu H_ii + 1e-12 (mean H_ii + 1))) step = -g (Gaussian elimination with partial
+    pivoting; the 1e-12 keeps a label without nodes solvable, its step is 0).
+    Args: p (L, 4), hq (L, 4, 4), gq (L, 4), mu (L,). Returns: (L, 4) steps.
+    """
+    n = p.shape[0]
+    out = np.empty((n, 4))
+    t = np.zeros((4, 4))
+    a = np.empty((4, 4))
+    h = np.empty((4, 5))
+    for lab in range(n):
+        c = np.cos(p[lab, 1])
+        s = np.sin(p[lab, 1])
+        t[0, 0] = c
+        t[0, 1] = -p[lab, 0] * s
+        t[1, 0] = s
+        t[1, 1] = p[lab, 0] * c
+        t[2, 2] = 1.0
+        t[3, 3] = 1.0
+        for i in range(4):  # a = hq t
+            for j in range(4):
+                v = 0.0
+                for k in range(4):
+                    v += hq[lab, i, k] * t[k, j]
+                a[i, j] = v
+        dsum = 0.0
+        for i in range(4):  # h = t^T a, augmented with -g = -t^T gq
+            for j in range(4):
+                v = 0.0
+                for k in range(4):
+                    v += t[k, i] * a[k, j]
+                h[i, j] = v
+            v = 0.0
+            for k in range(4):
+                v += t[k, i] * gq[lab, k]
+            h[i, 4] = -v
+            dsum += h[i, i]
+        floor = 1e-12 * (dsum / 4.0 + 1.0)
+        for i in range(4):
+            h[i, i] += mu[lab] * h[i, i] + floor
+        for col in range(4):  # forward elimination, partial pivoting
+            piv = col
+            for i in range(col + 1, 4):
+                if abs(h[i, col]) > abs(h[piv, col]):
+                    piv = i
+            if piv != col:
+                for j in range(5):
+                    h[col, j], h[piv, j] = h[piv, j], h[col, j]
+            for i in range(col + 1, 4):
+                f = h[i, col] / h[col, col]
+                for j in range(col, 5):
+                    h[i, j] -= f * h[col, j]
+        for i in range(3, -1, -1):  # back substitution
+            v = h[i, 4]
+            for j in range(i + 1, 4):
+                v -= h[i, j] * out[lab, j]
+            out[lab, i] = v / h[i, i]
+    return out
