@@ -65,16 +65,32 @@ def expansion_move(
         (M,) int64 labels after the move (each node keeps its label or takes alpha).
     """
     labels, data, edges, edge_w = _as_arrays(labels, data, edges, edge_w)
+    _check_labels(labels, data.shape[1], int(alpha))
     terms = expansion_terms(labels, int(alpha), data, edges, edge_w)
     return _cut(labels, int(alpha), terms, np.asarray(label_costs, dtype=np.float64))
 
 
 def _as_arrays(labels, data, edges, edge_w):
-    """The dtypes and layouts the compiled move terms expect."""
-    return (np.ascontiguousarray(labels, dtype=np.int64),
-            np.ascontiguousarray(data, dtype=np.float64),
-            np.ascontiguousarray(np.asarray(edges, dtype=np.int64).reshape(-1, 2)),
-            np.ascontiguousarray(edge_w, dtype=np.float64))
+    """The dtypes and layouts the compiled move terms expect, checked: the compiled passes
+    do not check bounds (called once per function, not per move)."""
+    labels = np.ascontiguousarray(labels, dtype=np.int64)
+    data = np.ascontiguousarray(data, dtype=np.float64)
+    edges = np.ascontiguousarray(np.asarray(edges, dtype=np.int64).reshape(-1, 2))
+    edge_w = np.ascontiguousarray(edge_w, dtype=np.float64)
+    if data.ndim != 2 or len(data) != len(labels) or len(edge_w) != len(edges):
+        raise ValueError(f"expansion: expected data (M, L) and one weight per edge; got {len(labels)} labels, "
+                         f"data {data.shape}, {len(edges)} edges, {len(edge_w)} weights")
+    _check_labels(labels, data.shape[1])
+    if len(edges) and (edges.min() < 0 or edges.max() >= len(labels)):
+        raise ValueError(f"expansion: edge ends must lie in [0, {len(labels)}), got [{edges.min()}, {edges.max()}]")
+    return labels, data, edges, edge_w
+
+
+def _check_labels(labels: np.ndarray, n_labels: int, alpha: int | None = None) -> None:
+    if len(labels) and (labels.min() < 0 or labels.max() >= n_labels):
+        raise ValueError(f"expansion: labels must lie in [0, {n_labels}), got [{labels.min()}, {labels.max()}]")
+    if alpha is not None and not 0 <= alpha < n_labels:
+        raise ValueError(f"expansion: alpha must lie in [0, {n_labels}), got {alpha}")
 
 
 MAX_ENUMERATED_STARS = 3
@@ -200,9 +216,12 @@ def move_cannot_improve(
     unused); when that is >= 0 no move lowers the energy and the max-flow can be skipped.
     """
     label_costs = np.asarray(label_costs, dtype=np.float64)
-    sums = label_bound_sums(np.ascontiguousarray(labels, dtype=np.int64),
-                            np.ascontiguousarray(bound, dtype=np.float64), len(label_costs))
-    return _cannot_improve(alpha, label_costs, sums)
+    labels = np.ascontiguousarray(labels, dtype=np.int64)
+    _check_labels(labels, len(label_costs), int(alpha))
+    bound = np.ascontiguousarray(bound, dtype=np.float64)
+    if len(bound) != len(labels):
+        raise ValueError(f"move_cannot_improve: {len(bound)} bounds for {len(labels)} labels")
+    return _cannot_improve(int(alpha), label_costs, label_bound_sums(labels, bound, len(label_costs)))
 
 
 def _cannot_improve(alpha: int, label_costs: np.ndarray, sums: tuple) -> bool:
@@ -224,6 +243,7 @@ def move_bound(
     """(M,) D[k, alpha] - D[k, L_k] - (weight of the edges cut now at k), the ``bound`` of
     :func:`move_cannot_improve`."""
     labels, data, edges, edge_w = _as_arrays(labels, data, edges, edge_w)
+    _check_labels(labels, data.shape[1], int(alpha))
     return expansion_terms(labels, int(alpha), data, edges, edge_w)[4]
 
 
@@ -248,9 +268,12 @@ def alpha_expansion(
     cur = np.array(labels, dtype=np.int64)
     _, data, edges, edge_w = _as_arrays(cur, data, edges, edge_w)
     label_costs = np.asarray(label_costs, dtype=np.float64)
-    e_cur = energy(cur, data, edges, edge_w, label_costs)
     n_labels = data.shape[1]
     order = np.arange(n_labels) if order is None else np.asarray(order, dtype=np.int64)
+    if len(label_costs) != n_labels or (len(order) and (order.min() < 0 or order.max() >= n_labels)):
+        raise ValueError(f"alpha_expansion: {len(label_costs)} label costs and sweep order "
+                         f"{order.tolist()} for {n_labels} labels")
+    e_cur = energy(cur, data, edges, edge_w, label_costs)
     n_moves = n_acc = 0
     for _ in range(max_cycles):
         improved = False

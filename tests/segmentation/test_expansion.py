@@ -199,3 +199,19 @@ def test_enumerated_and_built_stars_give_moves_of_equal_energy(seed, monkeypatch
     e_enum, e_built = energy(enumerated, data, edges, w, h), energy(built, data, edges, w, h)
     assert e_enum == pytest.approx(e_built, rel=1e-12, abs=1e-9)
     assert not np.any(enumerated == 1)  # label 1's cost is saved by switching all of it
+
+
+@pytest.mark.parametrize("call, message", [
+    (lambda d, e, w, h: alpha_expansion(np.array([0, 2, 1]), d, e, w, h), "labels must lie in \\[0, 2\\)"),
+    (lambda d, e, w, h: alpha_expansion(np.array([0, 1, 1]), d, np.array([[0, 3]]), np.array([1.0]), h),
+     "edge ends must lie in \\[0, 3\\)"),
+    (lambda d, e, w, h: alpha_expansion(np.array([0, 1, 1]), d, e, w, h[:1]), "1 label costs"),
+    (lambda d, e, w, h: expansion_move(np.array([0, 1, 1]), 5, d, e, w, h), "alpha must lie in \\[0, 2\\)"),
+    (lambda d, e, w, h: move_cannot_improve(np.array([0, -1, 1]), 0, np.zeros(3), h), "got \\[-1, 1\\]"),
+])
+def test_expansion_rejects_inconsistent_input(call, message):
+    # The compiled move passes do not check bounds: the entry points do, once.
+    data = np.zeros((3, 2))
+    edges = np.array([[0, 1], [1, 2]])
+    with pytest.raises(ValueError, match=message):
+        call(data, edges, np.ones(2), np.array([1.0, 1.0]))
