@@ -428,3 +428,28 @@ def lm_steps(p, hq, gq, mu):  # pragma: no cover
                 v -= h[i, j] * out[lab, j]
             out[lab, i] = v / h[i, i]
     return out
+
+
+@njit(cache=True, nogil=True)
+def edge_contrast(data, edges):  # pragma: no cover
+    """(E,) min_l max(D[i, l], D[j, l]) - max(min_l D[i, l], min_l D[j, l]) for each edge (i, j)
+    (:func:`evseg.segmentation.energy.contrast_weights`)."""
+    m, n_labels = data.shape
+    best = np.empty(m)
+    for k in range(m):
+        v = data[k, 0]
+        for lab in range(1, n_labels):
+            if data[k, lab] < v:
+                v = data[k, lab]
+        best[k] = v
+    out = np.empty(edges.shape[0])
+    for e in range(edges.shape[0]):
+        i = edges[e, 0]
+        j = edges[e, 1]
+        common = max(data[i, 0], data[j, 0])
+        for lab in range(1, n_labels):
+            v = max(data[i, lab], data[j, lab])
+            if v < common:
+                common = v
+        out[e] = common - max(best[i], best[j])
+    return out

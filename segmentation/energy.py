@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from evseg.segmentation._kernels import data_cost_matrix, labeling_energy
+from evseg.segmentation._kernels import data_cost_matrix, edge_contrast, labeling_energy
 from evseg.segmentation.motion_model import linear_parameters
 
 
@@ -58,6 +58,41 @@ def potts_weights(edge_length: np.ndarray, lambda_p: float, weighting: str, edge
     if weighting == "distance":
         return lambda_p * np.minimum(1.0, edge_scale_px / np.maximum(length, 1e-12))
     raise ValueError(f"unknown Potts weighting {weighting!r}")
+
+
+CONTRAST_ONSET = 2.0
+"""Contrast-sensitive Potts: forcing an edge's two nodes onto one candidate may cost this much
+(sigma^2 units) beyond their own best fits before the edge's weight drops (flow noise)."""
+
+CONTRAST_SCALE = 3.0
+"""... and the weight falls as exp(-(c - CONTRAST_ONSET) / CONTRAST_SCALE) beyond it."""
+
+
+def contrast_weights(data: np.ndarray, edges: np.ndarray, min_weight: float, strength: float = 1.0) -> np.ndarray:
+    """(E,) multipliers of the Potts weights from the flow contrast across each edge.
+
+    c_ij = min_l max(D[i, l], D[j, l]) - max(min_l D[i, l], min_l D[j, l]): what it costs
+    (sigma^2 units) to explain both nodes by one candidate beyond explaining each by its own
+    best one. Two nodes of one surface share a candidate (c ~ 0); across the outline of an
+    object moving unlike the background c approaches the truncation tau^2; an outlier, which
+    no candidate explains, has no contrast with anything (c = 0, its edges keep their weight).
+    The multiplier is 1 - strength (1 - max(min_weight, exp(-max(c - CONTRAST_ONSET, 0) /
+    CONTRAST_SCALE))), in [min_weight, 1].
+
+    Example:
+        >>> data = np.array([[0.0, 9.0], [0.0, 9.0], [9.0, 0.0]])  # nodes 0, 1 fit label 0, node 2 label 1
+        >>> contrast_weights(data, np.array([[0, 1], [1, 2]]), 0.5).round(3).tolist()
+        [1.0, 0.5]
+    """
+    data = np.ascontiguousarray(data, dtype=np.float64)
+    edges = np.ascontiguousarray(np.asarray(edges, dtype=np.int64).reshape(-1, 2))
+    if len(edges) == 0 or data.shape[1] == 0:
+        return np.ones(len(edges))
+    if edges.min() < 0 or edges.max() >= len(data):  # the compiled pass does not check bounds
+        raise ValueError(f"contrast_weights: edge ends must lie in [0, {len(data)}), got [{edges.min()}, {edges.max()}]")
+    c = edge_contrast(data, edges)  # one compiled pass (numpy: 1.6 ms at 3 k nodes, 9 labels)
+    g = np.maximum(min_weight, np.exp(-np.maximum(c - CONTRAST_ONSET, 0.0) / CONTRAST_SCALE))
+    return 1.0 - strength * (1.0 - g)
 
 
 def potts_energy(labels: np.ndarray, edges: np.ndarray, edge_w: np.ndarray) -> float:

@@ -59,7 +59,7 @@ import numpy as np
 
 from evseg.errors import EventDataError
 from evseg.segmentation.config import SegmentationConfig
-from evseg.segmentation.energy import data_costs, energy, potts_weights
+from evseg.segmentation.energy import contrast_weights, data_costs, energy, potts_weights
 from evseg.segmentation.expansion import alpha_expansion
 from evseg.segmentation.fitting import fit_lm
 from evseg.segmentation.initialization import (
@@ -287,6 +287,8 @@ class PreparedWindow:
         sampled: round 0's sampled candidates already computed (:func:`with_sampled_candidates`),
             one entry per candidate count asked; :func:`segment_prepared` computes the count
             it needs when it is not there.
+        flow_noise_rel: the flow's 1-ring noise over its median magnitude (NaN when not
+            measured), which sets the strength of contrast-sensitive Potts.
     """
 
     config: SegmentationConfig
@@ -310,6 +312,7 @@ class PreparedWindow:
     suspect: np.ndarray
     timings: dict
     sampled: tuple[SampledCandidates, ...] = ()
+    flow_noise_rel: float = float("nan")
 
     @property
     def max_propagation_px(self) -> float:
@@ -421,9 +424,11 @@ def prepare_window(
     # The residual scale also follows the measured noise of the flow (about its 1-ring
     # translations): exact flow can be judged tightly, a learned estimate cannot.
     rings = None
-    if cfg.residual_scale_noise > 0 and m:
+    noise_rel = float("nan")
+    if (cfg.residual_scale_noise > 0 or cfg.contrast_min_weight < 1) and m:
         rings = local_translations(graph.nx, graph.ny, graph.edges, sigma)
         noise = ring_noise(graph.nx, graph.ny, graph.edges, sigma, translations=rings)
+        noise_rel = noise / float(np.median(norm))
         if cfg.residual_scale_noise * noise > sigma:
             sigma, rings = cfg.residual_scale_noise * noise, None  # the rings' scale changed
     conf, node_scale = _uncertainty_terms(cfg, graph, a.get("uncertainty"), sigma)
@@ -453,7 +458,7 @@ def prepare_window(
         config=cfg, sensor_size=sensor_size, origin=origin, graph=graph, xr=xr, yr=yr, grown=grown,
         lambda_m=lambda_m, sigma=sigma, edge_w=edge_w, radius=radius, t_ref=t_ref, conf=conf,
         node_scale=node_scale, fit_w=fit_w, vote_x=vote_x, vote_y=vote_y, voting=voting,
-        suspect=suspect, timings=timings)
+        suspect=suspect, timings=timings, flow_noise_rel=noise_rel)
 
 
 def segment_prepared(
@@ -557,6 +562,11 @@ def segment_prepared(
                 models, data, labels, h = _merge_duplicates(
                     models, data, labels, h, cfg.merge_tol * sigma, radius, graph.edges, edge_w)
                 n_candidates += n_extra
+        strength = contrast_strength(pw.flow_noise_rel, cfg.contrast_max_noise) if cfg.contrast_min_weight < 1 else 0.0
+        if strength > 0:
+            # From here on the window's energy has contrast-sensitive Potts weights (from all
+            # of round 0's candidates, fixed for the alternation so that it still descends).
+            edge_w = edge_w * contrast_weights(data, graph.edges, cfg.contrast_min_weight, strength)
         for n_rounds in range(1, cfg.max_rounds + 1):
             res = alpha_expansion(labels, data, graph.edges, edge_w, h, cfg.expansion_cycles)
             used = np.flatnonzero(np.bincount(res.labels, minlength=len(models)))
@@ -632,6 +642,18 @@ def segment_prepared(
         sensor_size=None if sensor_size is None else (int(sensor_size[0]), int(sensor_size[1])),
         timings=timings, max_propagation_px=pw.max_propagation_px,
     )
+
+
+def contrast_strength(noise_rel: float, max_noise: float) -> float:
+    """Strength in [0, 1] of contrast-sensitive Potts for a window whose relative flow noise is
+    ``noise_rel``: 1 up to ``max_noise / 2``, 0 from ``max_noise`` on (and when not measured).
+
+    >>> contrast_strength(0.01, 0.06), contrast_strength(0.045, 0.06), contrast_strength(0.07, 0.06)
+    (1.0, 0.5, 0.0)
+    """
+    if not np.isfinite(noise_rel) or max_noise <= 0:
+        return 0.0
+    return float(np.clip((max_noise - noise_rel) / (0.5 * max_noise), 0.0, 1.0))
 
 
 def _round0_refits(models, data, labels, pw: PreparedWindow, lm_kw, costs):

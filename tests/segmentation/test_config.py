@@ -43,7 +43,10 @@ def test_wrong_types_and_values(tmp_path):
         SegmentationConfig(cell_rule="latest")
     with pytest.raises(ConfigError, match="tracked_label_cost"):
         SegmentationConfig(tracked_label_cost=-0.5)
-    for field in ("occlusion_gap_px", "n_sampled_normal"):
+    for bad in (0.0, 1.5):
+        with pytest.raises(ConfigError, match="contrast_min_weight must be in \\(0, 1\\]"):
+            SegmentationConfig(contrast_min_weight=bad)
+    for field in ("occlusion_gap_px", "n_sampled_normal", "contrast_max_noise"):
         with pytest.raises(ConfigError, match=field):
             SegmentationConfig(**{field: -1})
     with pytest.raises(ConfigError, match="unknown segmentation preset"):

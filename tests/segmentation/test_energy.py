@@ -43,3 +43,21 @@ def test_energy_rejects_inconsistent_input(bad, message):
     args.update(bad)
     with pytest.raises(ValueError, match=message):
         energy(**args)
+
+
+def test_contrast_weights():
+    from evseg.segmentation.energy import contrast_weights
+
+    tau2 = 9.0
+    # Nodes 0, 1 fit label 0; node 2 fits label 1; node 3 fits nothing (an outlier: tau^2 under both).
+    data = np.array([[0.0, tau2], [0.5, tau2], [tau2, 0.0], [tau2, tau2]])
+    edges = np.array([[0, 1], [1, 2], [2, 3], [0, 3]])
+    w = contrast_weights(data, edges, min_weight=0.5)
+    assert w[0] == 1.0  # one surface: c = 0.5 - 0.5 = 0 below the onset
+    assert w[1] == 0.5  # an outline: c = 9 - 0.5, exp(-(8.5 - 2) / 3) = 0.11 -> the floor
+    assert w[2] == 1.0 and w[3] == 1.0  # the outlier has no contrast with anything
+    # c = 4 (two sigma^2 past the onset): exp(-2 / 3)
+    mid = contrast_weights(np.array([[0.0, 4.0], [4.0, 0.0]]), np.array([[0, 1]]), min_weight=0.1)
+    assert mid[0] == pytest.approx(np.exp(-2.0 / 3.0))
+    np.testing.assert_array_equal(contrast_weights(data, edges, 0.5, strength=0.0), np.ones(4))
+    assert contrast_weights(data, edges, 0.5, strength=0.5)[1] == 0.75
