@@ -453,3 +453,42 @@ def edge_contrast(data, edges):  # pragma: no cover
                 common = v
         out[e] = common - max(best[i], best[j])
     return out
+
+
+@njit(cache=True, nogil=True)
+def lm_setup(labels, n_labels, x, y, nx, ny, weights):  # pragma: no cover
+    """The per-node arrays of :func:`.fitting.fit_lm` in one pass over the nodes whose label
+    lies in [0, n_labels): labels (K,), the residual's Jacobian in q (K, 4) (rows of
+    :func:`.motion_model.residual_jacobian`), its outer products (K, 16), |n| (K,), the
+    weights (K,) and the label indicator (n_labels, K)."""
+    m = labels.shape[0]
+    k = 0
+    for i in range(m):
+        if 0 <= labels[i] < n_labels:
+            k += 1
+    lab = np.empty(k, dtype=np.int64)
+    jq = np.empty((k, 4))
+    jj = np.empty((k, 16))
+    norm = np.empty(k)
+    w = np.empty(k)
+    onehot = np.zeros((n_labels, k))
+    j = 0
+    for i in range(m):
+        if not 0 <= labels[i] < n_labels:
+            continue
+        n = np.hypot(nx[i], ny[i])
+        hx = nx[i] / n
+        hy = ny[i] / n
+        jq[j, 0] = hx * x[i] + hy * y[i]
+        jq[j, 1] = hy * x[i] - hx * y[i]
+        jq[j, 2] = hx
+        jq[j, 3] = hy
+        for a in range(4):
+            for b in range(4):
+                jj[j, 4 * a + b] = jq[j, a] * jq[j, b]
+        norm[j] = n
+        w[j] = weights[i]
+        lab[j] = labels[i]
+        onehot[labels[i], j] = 1.0
+        j += 1
+    return lab, jq, jj, norm, w, onehot

@@ -30,8 +30,7 @@ import functools
 import numpy as np
 import torch
 
-from evseg.segmentation._kernels import lm_steps
-from evseg.segmentation.motion_model import residual_jacobian
+from evseg.segmentation._kernels import lm_setup, lm_steps
 
 LOSSES = ("none", "huber", "cauchy", "truncated")
 
@@ -182,23 +181,27 @@ def fit_lm(
         raise ValueError(f"unknown robust loss {loss!r}; one of {LOSSES}")
     p = np.array(models, dtype=np.float64).reshape(-1, 4)
     n_labels = p.shape[0]
-    keep = _valid(labels, n_labels)
-    if n_labels == 0 or not keep.any():
+    labels = np.ascontiguousarray(labels, dtype=np.int64)
+    if n_labels == 0 or not _valid(labels, n_labels).any():
         return p.copy()
-    lab_np = np.asarray(labels, dtype=np.int64)[keep]
+    f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
+    lengths = {name: len(np.asarray(a)) for name, a in (("x", x), ("y", y), ("nx", nx), ("ny", ny))}
+    if weights is not None:
+        lengths["weights"] = len(np.asarray(weights))
+    if any(n != len(labels) for n in lengths.values()):  # the compiled pass does not check bounds
+        raise ValueError(f"fit_lm: {len(labels)} labels but lengths {lengths}")
+    # The per-node arrays in one compiled pass (the rows of motion_model.residual_jacobian,
+    # their outer products and the label indicator; ~0.3 ms of numpy and torch calls per fit).
+    lab_np, jq, jj, norm, w0, indicator = lm_setup(
+        labels, n_labels, f64(x), f64(y), f64(nx), f64(ny), np.ones(len(labels)) if weights is None else f64(weights))
     lab = torch.from_numpy(lab_np)
-    xs, ys, nxs, nys = (np.asarray(a, dtype=np.float64)[keep] for a in (x, y, nx, ny))
-    w0 = np.ones(len(xs)) if weights is None else np.asarray(weights, dtype=np.float64)[keep]
-    Jq_np, norm = residual_jacobian(xs, ys, nxs, nys)
-    Jq = _t(Jq_np)  # (M, 4): r = Jq q - |n|, linear in q
-    JJ = (Jq[:, :, None] * Jq[:, None, :]).reshape(-1, 16)
-    N, W0 = _t(norm), _t(w0)
+    Jq, JJ = torch.from_numpy(jq), torch.from_numpy(jj)  # (M, 4): r = Jq q - |n|, linear in q
+    N, W0 = torch.from_numpy(norm), torch.from_numpy(w0)
     lab_col = lab[:, None]
     # Per-label sums as (L, M) @ (M, k) products with the label indicator instead of
     # index_add_: for the few labels and thousands of nodes of a window, fitting went from 9.3
     # to 8.7 ms per window on the 1 M ev/s benchmark stream (identical labels).
-    onehot = torch.zeros(n_labels, len(lab_np), dtype=torch.float64)
-    onehot[lab, torch.arange(len(lab_np))] = 1.0
+    onehot = torch.from_numpy(indicator)
     inv_scale = 1.0 / float(loss_scale_px_s)
     # Prior weight per label (IRLS units: squared px/s residuals), and in cost units.
     kappa = float(affine_prior_px) ** 2 * np.bincount(lab_np, weights=w0, minlength=n_labels)

@@ -142,3 +142,9 @@ def test_lm_steps_solve_the_damped_normal_equations_in_model_parameters():
     np.testing.assert_allclose(lm_steps(p, hq, gq, mu), expected, rtol=1e-9, atol=1e-12)
     # A label without nodes (Hq = 0, gq = 0) does not move.
     assert np.all(lm_steps(p[:1], np.zeros((1, 4, 4)), np.zeros((1, 4)), mu[:1]) == 0.0)
+
+
+def test_fit_lm_rejects_arrays_of_different_lengths():
+    x = np.zeros(5)
+    with pytest.raises(ValueError, match="fit_lm: 5 labels but lengths .*'nx': 4"):
+        fit_lm(x, x, np.ones(4), x, np.zeros(5, dtype=int), np.array([[1.0, 0.0, 0.0, 0.0]]))
