@@ -30,7 +30,10 @@ Order of the steps (our choice where the paper is silent):
    1-rings are too mixed to vote (a small spinning ball), is exactly such a region, while
    scattered outlier flows are not (flows that contradict a 1-ring moving as one are left out
    of the regions).
-4. Rounds 1..max_rounds: alpha-expansion from the current labeling, drop empty labels, LM refit,
+4. On precise flow (relative 1-ring noise under ``contrast_max_noise``), the Potts weight of
+   each edge across which no round-0 candidate explains both nodes drops to as little as
+   ``contrast_min_weight`` (:func:`.energy.contrast_weights`), for the rest of the window.
+   Rounds 1..max_rounds: alpha-expansion from the current labeling, drop empty labels, LM refit,
    merge near-duplicate models (only when that lowers the energy);
    a refitted model replaces the old one only if it lowers its label's data energy, so the
    energy never increases. Stop when the labeling is unchanged and no model's flow moved more
