@@ -148,3 +148,23 @@ def test_fit_lm_rejects_arrays_of_different_lengths():
     x = np.zeros(5)
     with pytest.raises(ValueError, match="fit_lm: 5 labels but lengths .*'nx': 4"):
         fit_lm(x, x, np.ones(4), x, np.zeros(5, dtype=int), np.array([[1.0, 0.0, 0.0, 0.0]]))
+
+
+def test_lm_setup_rows_are_residual_jacobian_rows():
+    # The compiled set-up of fit_lm repeats motion_model.residual_jacobian's formula: the rows,
+    # their outer products and |n| must stay bit-identical to it, for the kept labels in order.
+    from evseg.segmentation._kernels import lm_setup
+    from evseg.segmentation.motion_model import residual_jacobian
+
+    rng = np.random.default_rng(3)
+    m = 50
+    x, y, nx, ny = rng.normal(0, 100, m), rng.normal(0, 80, m), rng.normal(0, 50, m), rng.normal(0, 50, m)
+    labels = rng.integers(-1, 4, m)  # -1 and 3 are outside [0, 3): left out
+    w = rng.uniform(0.1, 2, m)
+    lab, jq, jj, norm, w0, onehot = lm_setup(labels, 3, x, y, nx, ny, w)
+    keep = (labels >= 0) & (labels < 3)
+    j_ref, n_ref = residual_jacobian(x[keep], y[keep], nx[keep], ny[keep])
+    assert np.array_equal(lab, labels[keep]) and np.array_equal(w0, w[keep])
+    assert np.array_equal(jq, j_ref) and np.array_equal(norm, n_ref)
+    assert np.array_equal(jj, (j_ref[:, :, None] * j_ref[:, None, :]).reshape(-1, 16))
+    assert np.array_equal(onehot, (lab[None, :] == np.arange(3)[:, None]).astype(float))
