@@ -182,18 +182,19 @@ def fit_lm(
     p = np.array(models, dtype=np.float64).reshape(-1, 4)
     n_labels = p.shape[0]
     labels = np.ascontiguousarray(labels, dtype=np.int64)
-    if n_labels == 0 or not _valid(labels, n_labels).any():
-        return p.copy()
     f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
     lengths = {name: len(np.asarray(a)) for name, a in (("x", x), ("y", y), ("nx", nx), ("ny", ny))}
     if weights is not None:
         lengths["weights"] = len(np.asarray(weights))
     if any(n != len(labels) for n in lengths.values()):  # the compiled pass does not check bounds
         raise ValueError(f"fit_lm: {len(labels)} labels but lengths {lengths}")
-    # The per-node arrays in one compiled pass (the rows of motion_model.residual_jacobian,
-    # their outer products and the label indicator; ~0.3 ms of numpy and torch calls per fit).
+    # The per-node arrays of the labels in [0, L) in one compiled pass (the rows of
+    # motion_model.residual_jacobian, their outer products and the label indicator; ~0.3 ms of
+    # numpy and torch calls per fit).
     lab_np, jq, jj, norm, w0, indicator = lm_setup(
         labels, n_labels, f64(x), f64(y), f64(nx), f64(ny), np.ones(len(labels)) if weights is None else f64(weights))
+    if len(lab_np) == 0:  # no label or no node with a label
+        return p.copy()
     lab = torch.from_numpy(lab_np)
     Jq, JJ = torch.from_numpy(jq), torch.from_numpy(jj)  # (M, 4): r = Jq q - |n|, linear in q
     N, W0 = torch.from_numpy(norm), torch.from_numpy(w0)
