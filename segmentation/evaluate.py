@@ -127,17 +127,31 @@ def evaluate_scene(
     }
 
 
-def evaluate_oracle(quick: bool = False) -> list[dict]:
+def evaluate_oracle(quick: bool = False, seeds=None, overrides: dict | None = None) -> list[dict]:
     """Oracle evaluation over held-out scenes: one row per scene, then pooled rows per preset
     and over all scenes (metrics over the pooled windows; timings are medians of the scenes'
     median per-window times).
 
     Full: 7 seeds (1000-1006) x 3 presets = 21 scenes of 100 ms (10 windows of 10 ms each),
     with clean flow and with 30 % outliers. Quick: 1 seed per preset, 50 ms, clean only.
+    ``seeds``: other scene seeds (the README's validation figures use ``range(900, 921)``);
+    ``overrides``: :class:`SegmentationConfig` fields set on every preset (e.g.
+    ``{"contrast_min_weight": 1.0}``), to compare settings the way the README does.
     """
+    from dataclasses import replace
+
     from evseg.metrics import summarize
 
-    seeds = [1000] if quick else list(range(1000, 1007))
+    import dataclasses
+
+    from evseg.errors import ConfigError
+
+    unknown = sorted(set(overrides or {}) - {f.name for f in dataclasses.fields(SegmentationConfig)})
+    if unknown:
+        raise ConfigError(f"evaluate_oracle: unknown segmentation parameter(s) {unknown}")
+    if seeds is None:
+        seeds = [1000] if quick else list(range(1000, 1007))
+    seeds = [int(s) for s in seeds]
     duration = 50_000 if quick else 100_000
     fractions = [0.0] if quick else [0.0, 0.3]
     rows = []
@@ -145,7 +159,8 @@ def evaluate_oracle(quick: bool = False) -> list[dict]:
         block = []
         for preset in PRESETS:
             for seed in seeds:
-                block.append(evaluate_scene(preset, seed, duration, outlier_fraction=frac))
+                cfg = replace(load_segmentation_config(PRESETS[preset]), **(overrides or {}))
+                block.append(evaluate_scene(preset, seed, duration, outlier_fraction=frac, config=cfg))
         rows += block
         groups = [(p, [r for r in block if r["preset"] == p]) for p in PRESETS] + [("ALL", block)]
         for name, members in groups:

@@ -446,3 +446,21 @@ def test_evaluate_pipeline_passes_pipeline_options_on():
 
     with pytest.raises(ConfigError, match="min_track_windows"):
         evaluate_pipeline(quick=True, min_track_windows=0)
+
+
+def test_evaluate_pipeline_simulates_the_seeds_asked(monkeypatch):
+    """evaluate_pipeline(seeds=...) simulates those scenes (validation seeds, not the held-out
+    1000-1007); the simulator is stubbed to record the first scene asked and stop."""
+    import evseg.simulator
+    from evseg.pipeline_eval import evaluate_pipeline
+
+    asked = []
+
+    def stop(preset, seed, duration_us):
+        asked.append((seed, duration_us))
+        raise RuntimeError("stop")
+
+    monkeypatch.setattr(evseg.simulator, "simulate", stop)
+    with pytest.raises(RuntimeError, match="stop"):
+        evaluate_pipeline(seeds=range(900, 910))
+    assert asked == [(900, 300_000)]

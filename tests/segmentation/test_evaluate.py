@@ -32,3 +32,16 @@ def test_own_events_detected_needs_the_events_to_span_the_truth_box():
     truth = (0, 0, 9, 19)
     assert not own_events_detected(np.array([0, 9]), np.array([0, 8]), truth, (30, 30))
     assert own_events_detected(np.array([0, 9, 0, 9]), np.array([0, 0, 19, 19]), truth, (30, 30))
+
+
+def test_evaluate_oracle_takes_other_seeds_and_setting_overrides():
+    import pytest
+
+    from evseg.errors import ConfigError
+    from evseg.segmentation.evaluate import evaluate_oracle
+
+    rows = evaluate_oracle(quick=True, seeds=[900], overrides={"contrast_min_weight": 1.0})
+    scenes = [r for r in rows if "pooled" not in str(r["preset"])]
+    assert [r["seed"] for r in scenes] == [900, 900, 900]  # one scene per preset
+    with pytest.raises(ConfigError, match="lamda_p"):
+        evaluate_oracle(quick=True, seeds=[900], overrides={"lamda_p": 1.0})
