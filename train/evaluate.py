@@ -18,6 +18,9 @@ it rejects some fits and the comparison must be on the same events):
 - ``ae_reduction``: ``1 - ae_learned_common / ae_baseline`` (target: >= 0.30);
 - ``sign_learned``, ``sign_baseline``: share with ``p . n > 0`` (common targets);
   ``sign_learned_all``: the same for the learned flow on all targets;
+- ``sign_u_learned_all``: share with ``p . u > 0`` against GT optical flow ``u`` on all
+  targets (VecKM_flow's sign-correct rate, method.md section 3: weaker than ``p . n > 0``,
+  since every valid normal flow of ``u`` lies in ``u``'s half-plane);
 - ``relmag_learned``, ``relmag_baseline``: median ``| |p| - |n| | / |n|`` (common targets);
 - ``normerr_learned``, ``normerr_baseline``: median VecKM_flow norm error
   ``| |p| - (p . u) / |p| |`` against GT optical flow ``u``, px/s (common targets);
@@ -141,6 +144,7 @@ def flow_accuracy_row(a: dict[str, np.ndarray], drop_fraction: float = 0.2) -> d
         "sign_learned": sign(p[common], n[common]),
         "sign_baseline": sign(b[common], n[common]),
         "sign_learned_all": sign(p, n),
+        "sign_u_learned_all": sign(p, u),
         "relmag_learned": _median(relative_magnitude_error(p[common], n[common])),
         "relmag_baseline": _median(relative_magnitude_error(b[common], n[common])),
         "normerr_learned": _median(norm_error(p[common], u[common])),

@@ -20,10 +20,12 @@ from evseg.veckm_flow.result import NormalFlow
 
 def test_accuracy_row_exact_values():
     n = np.array([[100.0, 0], [0, 100], [100, 0], [0, -100], [50, 50]])
+    # optical flow u with n as a valid normal flow of it (n . u = |n|^2) except the last row
+    u = np.array([[100.0, 50], [-100, 100], [100, -200], [0, -100], [-50, -50]])
     learned = np.array([[100.0, 0], [0, 200], [0, 100], [0, 100], [50, 50]])  # AE 0, 0, 90, 180, 0
     baseline = np.array([[100.0, 100], [np.nan, np.nan], [100, 0], [0, -50], [np.nan, np.nan]])  # AE 45, -, 0, 0
     row = flow_accuracy_row({
-        "learned": learned, "baseline": baseline, "normal_flow": n, "optical_flow": n,
+        "learned": learned, "baseline": baseline, "normal_flow": n, "optical_flow": u,
         "uncertainty": np.array([0.1, 0.2, 0.9, 1.0, 0.3]),
     }, drop_fraction=0.2)
     assert row["targets"] == 5 and row["baseline_kept"] == pytest.approx(0.6)
@@ -32,6 +34,8 @@ def test_accuracy_row_exact_values():
     assert row["ae_baseline"] == pytest.approx(0.0)  # 45, 0, 0
     assert row["sign_learned"] == pytest.approx(1 / 3) and row["sign_baseline"] == pytest.approx(1.0)
     assert row["sign_learned_all"] == pytest.approx(3 / 5)
+    # p . u: 100*100 > 0, 200*100 > 0, 100*-200 < 0, 100*-100 < 0, -5000 < 0
+    assert row["sign_u_learned_all"] == pytest.approx(2 / 5)
     # dropping the most uncertain (target 3, AE 180) leaves 0, 0, 90, 0: median 0
     assert row["ae_learned_keep80"] == pytest.approx(0.0)
     assert row["relmag_learned"] == pytest.approx(0.0)  # |p| = |n| on the common targets
