@@ -1,6 +1,6 @@
 """Bounded memory: peak RSS of `evseg segment` streaming long recordings from disk.
 
-A 1 s simulated EVIMO-like tile (128x96 px, thinned to the requested event rate) is repeated
+A 1 s simulated EVIMO-like tile is repeated
 with time offsets into recordings of increasing length, streamed to a DSEC-style HDF5 file
 through :func:`evseg.io.hdf5.write_h5_chunks` (bounded memory; never committed, written to a
 temporary folder). Each recording is segmented by `evseg segment --flow-method METHOD` in a
@@ -9,13 +9,16 @@ child process whose resident memory, with that of its own worker process, is sam
 ``ru_maxrss`` of that child (``os.wait4``). Flat memory = the same peak for
 10 s and 10 min, and no growth between the middle and the end of one run.
 
-The 10 min run uses the plane-fit flow (the cheaper estimator: 10 min of recording take about
-10 min on 2 busy cores); the learned flow (shipped model) runs on 10 s and 60 s. A precomputed
-flow file (``--flow``) is loaded whole by design, so it is not a streaming case.
+Two tiles: a small one (128x96 px, thinned to 20 k events/s) for runs of 10 s to 10 min with
+either estimator, and the size of issue 5's latency target (346x260 px, about 1 M events/s,
+:func:`evseg.pipeline_bench.simulated_stream`) for a 10 min run with the learned flow: the
+real-time case, ~0.5 G events and a ~7 GB file (written to a temporary folder, deleted after).
+A precomputed flow file (``--flow``) is loaded whole by design, so it is not a streaming case.
 ``OMP_NUM_THREADS=1`` in the child keeps the numbers comparable on a shared machine.
 
-Run: ``evseg bench memory --repeats 1`` (about 15 min on 2 cores; ``--quick``: plane-fit flow on
-5 s and 20 s). Memory does not vary between runs; one repeat suffices.
+Run: ``evseg bench memory --repeats 1`` (about an hour on 2 cores, 40 min of it the 1 M
+events/s run; ``--quick``: plane-fit flow on 5 s and 20 s of the small tile). Memory does not
+vary between runs; one repeat suffices.
 """
 
 from __future__ import annotations
@@ -30,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 SENSOR = (128, 96)
+FULL_RATE_EV_S = 1e6
 TILE_US = 1_000_000
 SAMPLE_S = 0.2
 
@@ -47,8 +51,19 @@ def tile_events(rate_ev_s: float, seed: int = 0) -> np.ndarray:
     return ev[keep]
 
 
-def write_long_recording(path: Path, tile: np.ndarray, duration_s: int) -> int:
-    """Write ``duration_s`` copies of the 1 s ``tile`` back to back (HDF5, streamed); events."""
+def full_size_tile(seed: int = 1100) -> tuple[np.ndarray, tuple[int, int]]:
+    """One second of the latency benchmark's stream (EVIMO-like, 346x260, ~1 M events/s) and
+    its sensor size (width, height)."""
+    from evseg.pipeline_bench import simulated_stream
+
+    rec = simulated_stream(FULL_RATE_EV_S, TILE_US, seed=seed)
+    return rec.stream.events, tuple(rec.stream.sensor_size)
+
+
+def write_long_recording(path: Path, tile: np.ndarray, duration_s: int,
+                         sensor: tuple[int, int] = SENSOR) -> int:
+    """Write ``duration_s`` copies of the 1 s ``tile`` back to back (HDF5, streamed) on a
+    ``sensor`` (width, height); returns the number of events."""
     from evseg.io.hdf5 import write_h5_chunks
 
     def chunks():
@@ -57,7 +72,7 @@ def write_long_recording(path: Path, tile: np.ndarray, duration_s: int) -> int:
             c["t"] += k * TILE_US
             yield c
 
-    write_h5_chunks(chunks(), path, lambda: (SENSOR, 0, None))
+    write_h5_chunks(chunks(), path, lambda: (tuple(sensor), 0, None))
     return len(tile) * duration_s
 
 
@@ -120,7 +135,8 @@ def measure_segment(recording: Path, out: Path, flow_method: str = "planefit") -
     return {"wall_s": wall, "peak_kb": peak_kb, "samples_kb": samples}
 
 
-def _row(flow_method: str, duration_s: int, n_events: int, file_mb: float, m: dict) -> dict:
+def _row(flow_method: str, duration_s: int, n_events: int, file_mb: float, m: dict,
+         sensor: tuple[int, int] = SENSOR) -> dict:
     s = np.asarray(m["samples_kb"], dtype=np.float64) / 1024
     q = max(1, len(s) // 4)
     # Growth within one run: median RSS of the last quarter minus that of the second quarter
@@ -128,6 +144,7 @@ def _row(flow_method: str, duration_s: int, n_events: int, file_mb: float, m: di
     growth = float(np.median(s[-q:]) - np.median(s[q : 2 * q])) if len(s) >= 8 else float("nan")
     return {
         "flow": flow_method,
+        "sensor": f"{sensor[0]}x{sensor[1]}",
         "recording_s": duration_s,
         "events": n_events,
         "rate_ev_s": round(n_events / duration_s),
@@ -143,20 +160,34 @@ def _row(flow_method: str, duration_s: int, n_events: int, file_mb: float, m: di
 
 
 def benchmark(repeats: int = 1, quick: bool = False, rate_ev_s: float = 20_000,
-              cases: tuple[tuple[str, int], ...] | None = None) -> list[dict]:
-    """Peak RSS of `evseg segment` per (flow method, recording length in s), median over
-    ``repeats`` runs."""
+              cases: tuple[tuple, ...] | None = None) -> list[dict]:
+    """Peak RSS of `evseg segment` per case, median over ``repeats`` runs.
+
+    A case is ``(flow method, recording length in s)`` on the small tile (``SENSOR`` at
+    ``rate_ev_s``) or ``(flow method, length, "full")`` on the full-size tile
+    (:func:`full_size_tile`).
+    """
     if cases is None:
         cases = ((("planefit", 5), ("planefit", 20)) if quick else
-                 (("planefit", 10), ("planefit", 60), ("planefit", 600), ("learned", 10), ("learned", 60)))
-    tile = tile_events(rate_ev_s)
+                 (("planefit", 10), ("planefit", 60), ("planefit", 600), ("learned", 10), ("learned", 60),
+                  ("learned", 600, "full")))
+    for case in cases:  # all checked before the first (long) run
+        if len(case) not in (2, 3) or (len(case) == 3 and case[2] not in ("small", "full")):
+            raise ValueError(f"memory benchmark: case {case!r}: expected (flow, seconds) or "
+                             "(flow, seconds, 'small' | 'full')")
+    tiles: dict[str, tuple[np.ndarray, tuple[int, int]]] = {}
     rows = []
     with tempfile.TemporaryDirectory(prefix="evseg-memory-") as d:
-        for flow_method, duration in cases:
+        for case in cases:
+            flow_method, duration = case[0], int(case[1])
+            kind = case[2] if len(case) > 2 else "small"
+            if kind not in tiles:
+                tiles[kind] = full_size_tile() if kind == "full" else (tile_events(rate_ev_s), SENSOR)
+            tile, sensor = tiles[kind]
             rec = Path(d) / f"long_{duration}s.h5"
-            n = write_long_recording(rec, tile, duration)
+            n = write_long_recording(rec, tile, duration, sensor)
             runs = [measure_segment(rec, Path(d) / "result.npz", flow_method) for _ in range(repeats)]
             med = sorted(runs, key=lambda m: m["peak_kb"])[len(runs) // 2]
-            rows.append(_row(flow_method, duration, n, rec.stat().st_size / 2**20, med))
+            rows.append(_row(flow_method, duration, n, rec.stat().st_size / 2**20, med, sensor))
             rec.unlink()
     return rows

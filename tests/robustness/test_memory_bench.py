@@ -52,3 +52,20 @@ def test_result_writer_keeps_no_masks_in_memory(tmp_path):
     r = load_result(tmp_path / "r.npz")
     assert r.masks.shape == (900, (346 * 260 + 7) // 8) and len(r.boxes) == 900
     np.testing.assert_array_equal(r.mask(899), mask)
+
+
+def test_long_recording_on_another_sensor(tmp_path):
+    tile = random_events(50, (346, 260), span_us=TILE_US, seed=1)
+    write_long_recording(tmp_path / "full.h5", tile, 2, sensor=(346, 260))
+    with open_recording(tmp_path / "full.h5") as rec:
+        assert rec.sensor_size == (346, 260)
+        assert sum(len(c) for c in rec.chunks()) == 100
+
+
+def test_unknown_tile_kind_is_refused_before_any_work():
+    import pytest
+
+    from evseg.memory_bench import benchmark
+
+    with pytest.raises(ValueError, match="'huge'"):
+        benchmark(cases=(("planefit", 10), ("learned", 10, "huge")))
