@@ -86,7 +86,7 @@ def detection_success(detected: np.ndarray, truth: np.ndarray) -> bool:
     """
     inter = np.count_nonzero(detected & truth)
     outside = np.count_nonzero(detected & ~truth)
-    return mask_iou(detected, truth) > 0.5 and inter > outside
+    return bool(mask_iou(detected, truth) > 0.5 and inter > outside)
 
 
 # --------------------------------------------------------------------------- matching

@@ -90,7 +90,7 @@ class PipelineConfig:
             until :meth:`MotionSegmentationPipeline.close`). Python runs one thread's code at a
             time, so the thread and the segmentation take turns in their Python parts; the
             child process runs truly beside it and also fits round 0's sampled candidates
-            (:func:`evseg.segmentation.solver.with_sampled_candidates`; for the candidate count
+            (:func:`evseg.segmentation.window.with_sampled_candidates`; for the candidate count
             the current tracks make likely) for the segmentation.
             Same results either way. The process costs ~1.5 s to start and a second copy of
             the model and libraries in memory (~0.3 GB), so it pays off on recordings, not on
@@ -342,7 +342,7 @@ class MotionSegmentationPipeline:
         flow, timings = self._estimate_flow(window.events, context)
         prepared, *rest = self._prepare(window, flow, timings)
         if sample_counts:
-            from evseg.segmentation.solver import with_sampled_candidates
+            from evseg.segmentation.window import with_sampled_candidates
 
             prepared = with_sampled_candidates(prepared, sample_counts)
         return (prepared, *rest)

@@ -7,14 +7,14 @@ Modules, one idea each: :mod:`.config` (parameters, YAML presets), :mod:`.prepro
 (nodes, Delaunay graph), :mod:`.motion_model` (affine model, normal-flow residual),
 :mod:`.fitting` (batched least squares and Levenberg-Marquardt in torch), :mod:`.energy`
 (data term, Potts, label cost), :mod:`.expansion` (alpha-expansion with label costs),
-:mod:`.initialization` (fast sampling, motion prediction), :mod:`.solver` (alternation),
+:mod:`.initialization` (fast sampling, motion prediction), :mod:`.window` (what a window's
+flow alone gives: graph, per-node terms, sampled candidates), :mod:`.solver` (alternation),
 :mod:`.outputs` (boxes, masks, label propagation), :mod:`.evaluate`, :mod:`.bench`.
 """
 
 from evseg.segmentation.config import SegmentationConfig, load_segmentation_config
-from evseg.segmentation.solver import (
-    PreparedWindow, SegmentationResult, prepare_window, propagate_labels, segment_normal_flow, segment_prepared,
-)
+from evseg.segmentation.solver import SegmentationResult, propagate_labels, segment_normal_flow, segment_prepared
+from evseg.segmentation.window import PreparedWindow, prepare_window
 
 __all__ = [
     "PreparedWindow",

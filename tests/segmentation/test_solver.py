@@ -372,7 +372,7 @@ def test_precomputed_sampled_candidates_segment_exactly_like_computing_them(monk
     predicted objects."""
     import evseg.segmentation.solver as solver
     from evseg.segmentation import prepare_window, segment_prepared
-    from evseg.segmentation.solver import with_sampled_candidates
+    from evseg.segmentation.window import with_sampled_candidates
 
     s = synthetic_scene(n_flows=2000, n_objects=2, seed=5)
     cfg = SegmentationConfig()
@@ -400,7 +400,7 @@ def test_n_sampled_normal_adds_candidates_from_the_normal_flows():
     """n_sampled_normal = k: round 0 gets up to k more sampled candidates, translations chosen
     among the nodes' normal flows away from the other candidates; 0 leaves sampling as it was."""
     from evseg.segmentation import prepare_window
-    from evseg.segmentation.solver import sample_candidates
+    from evseg.segmentation.window import sample_candidates
 
     s = synthetic_scene(n_flows=2000, n_objects=2, seed=5)
     plain = sample_candidates(prepare_window(s.x, s.y, s.t, s.nx, s.ny, sensor_size=s.sensor_size), 6)
@@ -472,12 +472,13 @@ def test_round0_refit_that_does_not_grow_its_candidate_is_undone():
     """A candidate 1.5 px/s off its object's motion already explains every node of the object,
     so refitting it moves it but cannot grow it: the refit is undone and the model comes back
     bit for bit (refits exist to grow, not to sharpen a candidate on the nodes it has)."""
-    from evseg.segmentation.solver import _costs, _lm_kwargs, _round0_refits, prepare_window
+    from evseg.segmentation.solver import _round0_refits
+    from evseg.segmentation.window import lm_kwargs, prepare_window, window_costs
 
     s = synthetic_scene(n_flows=4000, n_objects=1, seed=2, radius_px=(10.0, 10.0))
     pw = prepare_window(s.x, s.y, s.t, s.nx, s.ny, config=SegmentationConfig(residual_scale_px_s=2.0),
                         sensor_size=s.sensor_size)
-    costs = lambda m: _costs(pw, m)  # noqa: E731
+    costs = lambda m: window_costs(pw, m)  # noqa: E731
     start = s.models.copy()
     start[1, 2] += 1.5  # px/s: within the residual scale's reach of every object node
     data = costs(start)
@@ -485,7 +486,7 @@ def test_round0_refit_that_does_not_grow_its_candidate_is_undone():
     n_object = int((labels == 1).sum())
     assert 6 <= n_object <= 48  # a small candidate: the refit is tried
     assert n_object == int((s.label[pw.graph.index] == 1).sum())  # all of the object already
-    models, data_after, labels_after = _round0_refits(start, data, labels, pw, _lm_kwargs(pw), costs)
+    models, data_after, labels_after = _round0_refits(start, data, labels, pw, lm_kwargs(pw), costs)
     assert np.array_equal(models, start)
     assert np.array_equal(data_after, data) and np.array_equal(labels_after, labels)
 
@@ -527,7 +528,7 @@ def test_contrast_sensitive_potts_is_off_on_noisy_flow():
     relative ring noise is above contrast_max_noise, and the result is the plain-Potts one."""
     from dataclasses import replace
 
-    from evseg.segmentation.solver import prepare_window
+    from evseg.segmentation.window import prepare_window
 
     s = synthetic_scene(n_flows=3000, n_objects=2, seed=4)
     rng = np.random.default_rng(0)
