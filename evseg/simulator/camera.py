@@ -54,7 +54,13 @@ class PixelArray:
         if sensor.random_initial_level:
             # Random phase: L0 - ref uniform in (-C_neg, C_pos).
             u = rng.random(n).astype(np.float32)
-            self.ref = log0 - (u * (self.c_pos + self.c_neg) - self.c_neg)
+            offset = u * (self.c_pos + self.c_neg) - self.c_neg
+            self.ref = log0 - offset
+            # float32 rounding can put L0 - ref on a threshold (1 pixel in ~10^5), and a pixel
+            # whose intensity never changes would then fire at t = 0; pull those inside the band.
+            d = log0 - self.ref
+            edge = (d >= self.c_pos) | (d <= -self.c_neg)
+            self.ref[edge] = log0[edge] - offset[edge] * np.float32(0.999)
         else:
             self.ref = log0.copy()
         self.last_t_us = np.full(n, -np.inf)
