@@ -464,3 +464,24 @@ def test_evaluate_pipeline_simulates_the_seeds_asked(monkeypatch):
     with pytest.raises(RuntimeError, match="stop"):
         evaluate_pipeline(seeds=range(900, 910))
     assert asked == [(900, 300_000)]
+
+
+def test_eval_pipeline_table_adds_the_pooled_rows_with_ground_truth_flow(monkeypatch):
+    """`evseg eval pipeline` = the learned-flow rows, then only the pooled rows of the same run
+    with the simulator's flow, labelled as such (stubbed runs: this checks the table's make-up)."""
+    import evseg.pipeline_eval as pe
+    from evseg.commands.eval import TARGETS
+
+    assert TARGETS["pipeline"] == "evseg.pipeline_eval:evaluate_pipeline_and_oracle"
+    calls = []
+
+    def fake(quick=False, flow="learned", seeds=None, **options):
+        calls.append((quick, flow))
+        return [{"scene": f"eed_like #1000 {flow}"}, {"scene": "**scenes with objects**", "flow": flow}]
+
+    monkeypatch.setattr(pe, "evaluate_pipeline", fake)
+    rows = pe.evaluate_pipeline_and_oracle(quick=True)
+    assert calls == [(True, "learned"), (True, "precomputed")]
+    assert [r["scene"] for r in rows] == ["eed_like #1000 learned", "**scenes with objects**",
+                                          "**scenes with objects, ground-truth flow**"]
+    assert rows[-1]["flow"] == "precomputed"

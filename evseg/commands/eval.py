@@ -20,7 +20,7 @@ TARGETS = {
     "seg": "evseg.segmentation.evaluate:evaluate_oracle",
     "flow": "evseg.train.evaluate:evaluate_flow",
     "flow-real": "evseg.train.evaluate:evaluate_flow_real",
-    "pipeline": "evseg.pipeline_eval:evaluate_pipeline",
+    "pipeline": "evseg.pipeline_eval:evaluate_pipeline_and_oracle",
     "pipeline-real": "evseg.pipeline_real:evaluate_pipeline_real",
     "static": "evseg.pipeline_eval:evaluate_static_camera",
 }
