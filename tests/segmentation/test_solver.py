@@ -2,7 +2,6 @@
 
 import numpy as np
 import pytest
-from evseg.errors import EventDataError
 
 from evseg.segmentation import SegmentationConfig, load_segmentation_config, propagate_labels, segment_normal_flow
 from evseg.segmentation.motion_model import flow_field
@@ -335,17 +334,6 @@ def test_support_weighting_finds_a_dense_object_whose_nodes_alone_cannot_pay_its
     assert r.n_objects == 0
 
 
-@pytest.mark.parametrize("event_xy, match", [
-    ((np.zeros(3), np.zeros(2)), "x has 3 values, y has 2"),
-    ((np.array([0.0, np.nan]), np.zeros(2)), "NaN or infinite"),
-    ((np.zeros(2), ["a", "b"]), "numeric"),
-])
-def test_bad_event_positions_are_a_clear_error(event_xy, match):
-    s = synthetic_scene(n_flows=300, n_objects=1, seed=1)
-    with pytest.raises(EventDataError, match=match):
-        segment_normal_flow(s.x, s.y, s.t, s.nx, s.ny, sensor_size=s.sensor_size, event_xy=event_xy)
-
-
 def test_prepared_window_segments_exactly_like_the_one_call():
     """prepare_window + segment_prepared (the pipeline prepares window t + 1 on its worker
     thread) give the same result as segment_normal_flow, with and without a previous window."""
@@ -394,22 +382,6 @@ def test_precomputed_sampled_candidates_segment_exactly_like_computing_them(monk
         np.testing.assert_array_equal(got.node_labels, want.node_labels)
         np.testing.assert_array_equal(got.models, want.models)
         assert got.boxes == want.boxes and got.n_candidates == want.n_candidates
-
-
-def test_n_sampled_normal_adds_candidates_from_the_normal_flows():
-    """n_sampled_normal = k: round 0 gets up to k more sampled candidates, translations chosen
-    among the nodes' normal flows away from the other candidates; 0 leaves sampling as it was."""
-    from evseg.segmentation import prepare_window
-    from evseg.segmentation.window import sample_candidates
-
-    s = synthetic_scene(n_flows=2000, n_objects=2, seed=5)
-    plain = sample_candidates(prepare_window(s.x, s.y, s.t, s.nx, s.ny, sensor_size=s.sensor_size), 6)
-    cfg = SegmentationConfig(n_sampled_normal=2)
-    more = sample_candidates(prepare_window(s.x, s.y, s.t, s.nx, s.ny, config=cfg, sensor_size=s.sensor_size), 6)
-    k = len(more.models) - len(plain.models)
-    assert 1 <= k <= 2
-    np.testing.assert_array_equal(more.models[: len(plain.models)], plain.models)
-    assert more.data.shape == (plain.data.shape[0], len(more.models))
 
 
 def test_a_still_camera_keeps_zero_motion_as_background():
