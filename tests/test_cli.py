@@ -38,3 +38,19 @@ def test_commands_make_openmp_wait_passively_except_torch_training(monkeypatch):
     monkeypatch.setenv("OMP_WAIT_POLICY", "ACTIVE")
     _openmp_waits_passively("bench")
     assert os.environ["OMP_WAIT_POLICY"] == "ACTIVE"
+
+
+def test_bench_and_eval_tables_name_the_machine_and_its_speed(tmp_path, capsys):
+    """Every table's first line says the machine, the threads and a speed reference (the
+    median time of a fixed workload), so timings from different days can be compared."""
+    import re
+
+    from evseg.commands.bench import emit_table, speed_reference_ms
+
+    ref = speed_reference_ms(repeats=1)
+    assert 0 < ref < 10_000
+    emit_table([{"input": "x", "total ms": 1.5}], tmp_path / "t.md")
+    first = (tmp_path / "t.md").read_text().splitlines()[0]
+    assert first.startswith("machine: ") and "cores" in first and "OMP_NUM_THREADS=" in first
+    assert re.search(r"speed reference \d+\.\d ms", first)
+    assert capsys.readouterr().out.splitlines()[0] == first

@@ -36,11 +36,37 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, default=None, help="write the markdown table here too")
 
 
+def speed_reference_ms(repeats: int = 5) -> float:
+    """Median wall time (ms) of a fixed single-threaded workload: 2,000 small numpy operations
+    (the per-call overhead most of the pipeline pays) and a sort of 200,000 floats.
+
+    Shared and virtual machines change speed between days; the same code's timings compare
+    across tables only together with this figure (lower = faster machine).
+    """
+    import time
+
+    import numpy as np
+
+    a = np.random.default_rng(0).random(1000)
+    big = np.random.default_rng(1).random(200_000)
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        acc = a
+        for _ in range(1000):
+            acc = np.maximum(acc * 0.999, a) + 1e-9
+        np.sort(big, kind="stable")
+        times.append((time.perf_counter() - t0) * 1e3)
+    return float(np.median(times))
+
+
 def machine_line() -> str:
     threads = os.environ.get("OMP_NUM_THREADS", "default")
     return (
         f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
-        f"Python {platform.python_version()}, OMP_NUM_THREADS={threads}"
+        f"Python {platform.python_version()}, OMP_NUM_THREADS={threads}, "
+        f"speed reference {speed_reference_ms():.1f} ms (lower = faster; `speed_reference_ms` in "
+        f"evseg/commands/bench.py)"
     )
 
 
