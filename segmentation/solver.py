@@ -70,7 +70,7 @@ from evseg.segmentation.outputs import (
     background_layers, nearest_node_labels, region_box, region_mask, split_objects,
 )
 from evseg.segmentation.window import (
-    PreparedWindow, lm_kwargs, prepare_window, refit_models, sample_candidates, window_costs,
+    PreparedWindow, lm_kwargs, prepare_window, refit_to_labels, sample_candidates, window_costs,
 )
 
 
@@ -299,7 +299,7 @@ def segment_prepared(
             changed = len(used) != len(models) or not np.array_equal(new_labels, labels)
             models, data, labels, h = models[used], data[:, used], new_labels, h[used]
             old = models
-            models, data = refit_models(models, data, labels, xr, yr, graph, lm_kw, costs, ar)
+            models, data = refit_to_labels(models, data, labels, xr, yr, graph, lm_kw, costs, ar)
             models, data, labels, h = _merge_duplicates(models, data, labels, h, cfg.merge_tol * sigma,
                                                         radius, graph.edges, edge_w)
             if len(models) != len(old):

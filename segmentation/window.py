@@ -197,8 +197,9 @@ def sample_candidates(prepared: PreparedWindow, n: int) -> SampledCandidates:
     if len(pw.graph) == 0:
         return SampledCandidates(n, np.empty((0, 4)), np.empty((0, 0)), sampling_ms, 0.0)
     fit_on = round0_voters(pw.vote_x, pw.vote_y, pw.voting, sampled[:, 2:], bin_px_s)
-    models, data = refit_models(sampled, window_costs(pw, sampled), fit_on, pw.xr, pw.yr, pw.graph, lm_kwargs(pw),
-                          lambda mod: window_costs(pw, mod), np.arange(len(pw.graph)), always=True)
+    models, data = refit_to_labels(sampled, window_costs(pw, sampled), fit_on, pw.xr, pw.yr, pw.graph,
+                                   lm_kwargs(pw), lambda mod: window_costs(pw, mod), np.arange(len(pw.graph)),
+                                   always=True)
     return SampledCandidates(n, models, data, sampling_ms, (time.perf_counter() - tic) * 1e3)
 
 
@@ -323,7 +324,7 @@ def round0_voters(vote_x, vote_y, voting, cand_t, bin_px_s):
     return out
 
 
-def refit_models(models, data, labels, xr, yr, graph, lm_kw, costs, ar, always=False):
+def refit_to_labels(models, data, labels, xr, yr, graph, lm_kw, costs, ar, always=False):
     """LM-refit every label's model to its nodes (label -1: left out).
 
     A new model replaces the old one only if it lowers its label's data energy, so that the
