@@ -27,6 +27,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from evseg.segmentation._kernels import ring_agreement as _ring_agreement
+from evseg.segmentation._kernels import ring_pairs, ring_translations, spread_bins, vote_bins
 from evseg.segmentation.fitting import fit_lm
 from evseg.segmentation.motion_model import flow_field, models_from_linear, residual_jacobian
 
@@ -45,7 +47,8 @@ def local_translations(
     first with w = 1, then ``irls_iterations`` times with Cauchy weights
     w_j = 1 / (1 + (r_j / scale)^2) of the ring's residuals r_j = n_hat_j . t - |n_j|, so a
     few wrong flows in a ring (outliers, the other side of an object boundary) do not drag
-    the node's vote. All nodes at once with bincount over the (directed) edges.
+    the node's vote. One compiled pass per iteration over every node's ring (CSR of the
+    directed edges, :func:`evseg.segmentation._kernels.ring_pairs`).
 
     Args:
         nx, ny: (M,) normal flow px/s (|n| > 0). edges: (E, 2) graph edges.
@@ -56,17 +59,10 @@ def local_translations(
     """
     nx = np.asarray(nx, dtype=np.float64)
     ny = np.asarray(ny, dtype=np.float64)
-    m = len(nx)
     norm = np.hypot(nx, ny)
-    hx, hy = nx / norm, ny / norm
-    # ring pairs (centre, member): each node with itself and both directions of every edge
-    edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
-    centre = np.concatenate([np.arange(m), edges[:, 0], edges[:, 1]])
-    member = np.concatenate([np.arange(m), edges[:, 1], edges[:, 0]])
-    from evseg.segmentation._kernels import ring_translations
-
+    start, member = ring_pairs(np.asarray(edges, dtype=np.int64).reshape(-1, 2), len(nx))
     scale = float(scale_px_s) if scale_px_s is not None else 0.0
-    return ring_translations(centre, hx[member], hy[member], norm[member], m, scale,
+    return ring_translations(start, member, nx / norm, ny / norm, norm, scale,
                              int(irls_iterations), float(min_conditioning), nx, ny)
 
 
@@ -108,13 +104,9 @@ def ring_agreement(
     """
     nx = np.asarray(nx, dtype=np.float64)
     ny = np.asarray(ny, dtype=np.float64)
-    m = len(nx)
-    centre = np.concatenate([edges[:, 0], edges[:, 1]])
-    member = np.concatenate([edges[:, 1], edges[:, 0]])
-    norm = np.hypot(nx, ny)
-    r = ((nx[member] * tx[centre] + ny[member] * ty[centre]) / norm[member] - norm[member]) / scale_px_s
-    total = np.bincount(centre, weights=1.0 / (1.0 + r * r), minlength=m)
-    return total / np.maximum(np.bincount(centre, minlength=m), 1)
+    start, member = ring_pairs(np.asarray(edges, dtype=np.int64).reshape(-1, 2), len(nx))
+    return _ring_agreement(start, member, nx, ny, np.hypot(nx, ny), np.asarray(tx, dtype=np.float64),
+                           np.asarray(ty, dtype=np.float64), float(scale_px_s))
 
 
 def fast_sampling(
@@ -144,20 +136,9 @@ def fast_sampling(
     if len(nx) == 0 or n < 1:
         return np.empty((0, 4))
     means, count = _vote_bins(nx, ny, bin_px_s)
-    order = np.argsort(-count, kind="stable")
-    d2 = min_separation_px_s ** 2
-    n_frequent = (n + 1) // 2
-    taken = [means[order[0]]]
-    # dist2[b] = squared distance of bin b to the nearest candidate taken so far
-    dist2 = ((means - taken[0]) ** 2).sum(axis=1)
-    for o in order[1:]:  # most populated first; stops after n_frequent (bins skipped: cheap)
-        if len(taken) >= n_frequent or count[o] < 2:
-            break
-        if dist2[o] >= d2:
-            taken.append(means[o])
-            dist2 = np.minimum(dist2, ((means - means[o]) ** 2).sum(axis=1))
-    taken += _farthest_bins(means, count >= min_votes, dist2, n - len(taken), d2)
-    return _translations(taken)
+    dist2 = np.full(len(means), np.inf)
+    return _translations(spread_bins(means, count, int(n), (int(n) + 1) // 2, float(min_separation_px_s) ** 2,
+                                     int(min_votes), dist2))
 
 
 def farthest_candidates(
@@ -191,35 +172,12 @@ def farthest_candidates(
     dist2 = np.full(len(means), np.inf)
     for t in np.asarray(taken, dtype=np.float64).reshape(-1, 2):  # a dozen candidates
         dist2 = np.minimum(dist2, ((means - t) ** 2).sum(axis=1))
-    return _translations(_farthest_bins(means, count >= min_votes, dist2, n, min_separation_px_s ** 2))
+    return _translations(spread_bins(means, count, int(n), 0, float(min_separation_px_s) ** 2, int(min_votes), dist2))
 
 
 def _vote_bins(nx: np.ndarray, ny: np.ndarray, bin_px_s: float) -> tuple[np.ndarray, np.ndarray]:
     """Mean vector (B, 2) and vote count (B,) of each occupied square bin of ``bin_px_s``."""
-    nx = np.asarray(nx, dtype=np.float64)
-    ny = np.asarray(ny, dtype=np.float64)
-    ix = np.floor(nx / bin_px_s).astype(np.int64)
-    iy = np.floor(ny / bin_px_s).astype(np.int64)
-    ix -= ix.min()
-    iy -= iy.min()
-    _, key, count = np.unique(ix * (int(iy.max()) + 1) + iy, return_inverse=True, return_counts=True)
-    key = key.ravel()
-    means = np.column_stack([np.bincount(key, weights=nx), np.bincount(key, weights=ny)]) / count[:, None]
-    return means, count
-
-
-def _farthest_bins(means: np.ndarray, eligible: np.ndarray, dist2: np.ndarray, n: int, min_d2: float) -> list:
-    """Farthest-point sampling of up to ``n`` eligible bin means, each at least sqrt(min_d2)
-    from every point so far (``dist2``: squared distance of each bin to the nearest one)."""
-    out = []
-    while len(out) < n:  # at most n rounds
-        score = np.where(eligible, dist2, -1.0)
-        o = int(np.argmax(score))
-        if score[o] < min_d2:
-            break
-        out.append(means[o])
-        dist2 = np.minimum(dist2, ((means - means[o]) ** 2).sum(axis=1))
-    return out
+    return vote_bins(np.asarray(nx, dtype=np.float64), np.asarray(ny, dtype=np.float64), float(bin_px_s))
 
 
 def _translations(t: list) -> np.ndarray:

@@ -3,7 +3,8 @@
 import numpy as np
 
 from evseg.segmentation.initialization import (
-    farthest_candidates, fast_sampling, local_translations, motion_prediction, predict_boxes, ring_noise,
+    farthest_candidates, fast_sampling, local_translations, motion_prediction, predict_boxes, ring_agreement,
+    ring_noise,
 )
 from evseg.segmentation.motion_model import normal_flow_of
 from evseg.segmentation.preprocessing import delaunay_edges
@@ -60,6 +61,19 @@ def test_local_translations_match_a_plain_per_node_solution_with_outliers():
     np.testing.assert_array_equal(ok, rok)
     np.testing.assert_allclose(tx, rx, rtol=1e-9, atol=1e-9)
     np.testing.assert_allclose(ty, ry, rtol=1e-9, atol=1e-9)
+
+
+def test_ring_agreement_by_hand():
+    # path 0 - 1 - 2 and a lone node 3; flows along x of 10, 10 and 30 px/s, node 3 along y
+    nx, ny = np.array([10.0, 10.0, 30.0, 0.0]), np.array([0.0, 0.0, 0.0, 5.0])
+    edges = np.array([[0, 1], [1, 2]])
+    tx, ty = np.array([10.0, 10.0, 20.0, 0.0]), np.zeros(4)
+    agree = ring_agreement(nx, ny, edges, tx, ty, 10.0)
+    # node 0: neighbour 1 has r = (10 - 10) / 10 = 0 -> 1.0
+    # node 1: neighbours 0 (r = 0 -> 1) and 2 (n_2 = 30 along x: r = (10 - 30) / 10 = -2 -> 1/5),
+    #   mean (1 + 0.2) / 2 = 0.6
+    # node 2: neighbour 1: r = (20 - 10) / 10 = 1 -> 0.5; node 3: no neighbour -> 0
+    np.testing.assert_allclose(agree, [1.0, 0.6, 0.5, 0.0], rtol=0, atol=1e-15)
 
 
 def test_parallel_ring_does_not_vote():
