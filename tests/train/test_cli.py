@@ -86,14 +86,24 @@ def test_ddp_on_two_cpu_processes(tmp_path, edge_recording):
 
 
 def test_shipped_configs_parse(tmp_path):
-    """Both configs are valid LightningCLI configs (a typo would only surface at training time)."""
-    for name in ("default.yaml", "quick.yaml"):
-        cfg = REPO / "configs" / "train" / name
+    """Every config in configs/train is a valid LightningCLI config (a typo would only surface at
+    training time); one without ``seed_everything`` is an override of default.yaml."""
+    folder = REPO / "configs" / "train"
+    names = sorted(p.name for p in folder.glob("*.yaml"))
+    assert {"default.yaml", "quick.yaml", "time_scale_30ms.yaml"} <= set(names)
+    for name in names:
+        cfg = folder / name
+        standalone = "seed_everything" in yaml.safe_load(cfg.read_text())
+        configs = [cfg] if standalone else [folder / "default.yaml", cfg]
+        args = [a for c in configs for a in ("--config", str(c))]
         proc = subprocess.run(
-            [sys.executable, "-m", "evseg.train", "fit", "--config", str(cfg), "--print_config"],
+            [sys.executable, "-m", "evseg.train", "fit", *args, "--print_config"],
             cwd=tmp_path, capture_output=True, text=True, timeout=120,
         )
-        assert proc.returncode == 0, proc.stderr[-2000:]
+        assert proc.returncode == 0, (name, proc.stderr[-2000:])
         printed = yaml.safe_load(proc.stdout)
-        assert printed["seed_everything"] == 0
-        assert printed["model"]["encoding"]["polarity"] is True
+        assert printed["seed_everything"] == 0, name
+        assert printed["model"]["encoding"]["polarity"] is True, name
+        if name == "time_scale_30ms.yaml":
+            assert printed["model"]["encoding"]["t_scale_us"] == 30000.0
+            assert printed["trainer"]["max_steps"] == 16000  # the rest is default.yaml's
