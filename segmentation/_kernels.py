@@ -150,6 +150,20 @@ def vote_bins(vx, vy, bin_px_s):  # pragma: no cover
     return means, count
 
 
+@njit(cache=True, inline="always")
+def _take_bin(means, o, out, k, dist2):  # pragma: no cover
+    """Bin ``o``'s mean becomes ``out[k]``; ``dist2`` becomes each bin's squared distance to the
+    nearest point taken so far."""
+    out[k, 0] = means[o, 0]
+    out[k, 1] = means[o, 1]
+    for j in range(means.shape[0]):
+        dx = means[j, 0] - means[o, 0]
+        dy = means[j, 1] - means[o, 1]
+        d = dx * dx + dy * dy
+        if d < dist2[j]:
+            dist2[j] = d
+
+
 @njit(cache=True, nogil=True)
 def spread_bins(means, count, n, n_frequent, min_d2, min_votes, dist2):  # pragma: no cover
     """Up to ``n`` bin means (K, 2) for fast sampling: with ``n_frequent`` > 0, first the most
@@ -168,15 +182,8 @@ def spread_bins(means, count, n, n_frequent, min_d2, min_votes, dist2):  # pragm
             if r > 0 and (k >= n_frequent or count[o] < 2):
                 break
             if r == 0 or dist2[o] >= min_d2:
-                out[k, 0] = means[o, 0]
-                out[k, 1] = means[o, 1]
+                _take_bin(means, o, out, k, dist2)
                 k += 1
-                for j in range(nb):
-                    dx = means[j, 0] - means[o, 0]
-                    dy = means[j, 1] - means[o, 1]
-                    d = dx * dx + dy * dy
-                    if r == 0 or d < dist2[j]:
-                        dist2[j] = d
     while k < n:
         best = -1
         best_score = -np.inf
@@ -187,15 +194,8 @@ def spread_bins(means, count, n, n_frequent, min_d2, min_votes, dist2):  # pragm
                 best = j
         if best < 0 or best_score < min_d2:
             break
-        out[k, 0] = means[best, 0]
-        out[k, 1] = means[best, 1]
+        _take_bin(means, best, out, k, dist2)
         k += 1
-        for j in range(nb):
-            dx = means[j, 0] - means[best, 0]
-            dy = means[j, 1] - means[best, 1]
-            d = dx * dx + dy * dy
-            if d < dist2[j]:
-                dist2[j] = d
     return out[:k]
 
 
