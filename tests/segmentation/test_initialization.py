@@ -100,6 +100,48 @@ def test_fast_sampling_frequent_and_far_candidates():
     np.testing.assert_array_equal(c, fast_sampling(v[:, 0], v[:, 1], 6, 20.0, 40.0))
 
 
+def _fast_sampling_reference(vx, vy, n, bin_px_s, min_separation_px_s, min_votes=3):
+    """Fast sampling's documented rule written plainly in numpy (bins by np.unique)."""
+    ix = np.floor(vx / bin_px_s).astype(np.int64)
+    iy = np.floor(vy / bin_px_s).astype(np.int64)
+    ix, iy = ix - ix.min(), iy - iy.min()
+    _, key, count = np.unique(ix * (iy.max() + 1) + iy, return_inverse=True, return_counts=True)
+    means = np.column_stack([np.bincount(key, weights=vx), np.bincount(key, weights=vy)]) / count[:, None]
+    d2 = min_separation_px_s**2
+    order = np.argsort(-count, kind="stable")
+    taken = [means[order[0]]]
+    dist2 = ((means - taken[0]) ** 2).sum(axis=1)
+    for o in order[1:]:
+        if len(taken) >= (n + 1) // 2 or count[o] < 2:
+            break
+        if dist2[o] >= d2:
+            taken.append(means[o])
+            dist2 = np.minimum(dist2, ((means - means[o]) ** 2).sum(axis=1))
+    while len(taken) < n:
+        score = np.where(count >= min_votes, dist2, -1.0)
+        o = int(np.argmax(score))
+        if score[o] < d2:
+            break
+        taken.append(means[o])
+        dist2 = np.minimum(dist2, ((means - means[o]) ** 2).sum(axis=1))
+    return np.array(taken).reshape(-1, 2)
+
+
+def test_fast_sampling_equals_the_plain_rule_exactly():
+    """The compiled bins keep numpy's order of operations: same candidates, bit for bit
+    (so segmentations do not change with the implementation)."""
+    rng = np.random.default_rng(11)
+    for trial in range(200):
+        m = int(rng.integers(1, 2000))
+        centres = rng.normal(0.0, 200.0, (int(rng.integers(1, 6)), 2))
+        v = centres[rng.integers(0, len(centres), m)] + rng.normal(0.0, rng.uniform(1, 30), (m, 2))
+        if trial % 3 == 0:
+            v = np.round(v / 10.0) * 10.0  # many ties in the counts
+        n, b, sep = int(rng.integers(1, 25)), float(rng.uniform(1, 40)), float(rng.uniform(0, 100))
+        got = fast_sampling(v[:, 0], v[:, 1], n, b, sep)
+        np.testing.assert_array_equal(got[:, 2:], _fast_sampling_reference(v[:, 0], v[:, 1], n, b, sep))
+
+
 def test_farthest_candidates_find_a_translation_among_normal_flows():
     """The normal flows of a translating disc, n = (T . n_hat) n_hat, lie on a circle through
     0 and T, far from the background's: farthest-point sampling away from the background's
