@@ -138,13 +138,10 @@ def evaluate_oracle(quick: bool = False, seeds=None, overrides: dict | None = No
     ``overrides``: :class:`SegmentationConfig` fields set on every preset (e.g.
     ``{"contrast_min_weight": 1.0}``), to compare settings the way the README does.
     """
-    from dataclasses import replace
-
-    from evseg.metrics import summarize
-
     import dataclasses
 
     from evseg.errors import ConfigError
+    from evseg.metrics import summarize
 
     unknown = sorted(set(overrides or {}) - {f.name for f in dataclasses.fields(SegmentationConfig)})
     if unknown:
@@ -159,7 +156,7 @@ def evaluate_oracle(quick: bool = False, seeds=None, overrides: dict | None = No
         block = []
         for preset in PRESETS:
             for seed in seeds:
-                cfg = replace(load_segmentation_config(PRESETS[preset]), **(overrides or {}))
+                cfg = dataclasses.replace(load_segmentation_config(PRESETS[preset]), **(overrides or {}))
                 block.append(evaluate_scene(preset, seed, duration, outlier_fraction=frac, config=cfg))
         rows += block
         groups = [(p, [r for r in block if r["preset"] == p]) for p in PRESETS] + [("ALL", block)]

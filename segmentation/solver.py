@@ -145,7 +145,6 @@ def propagate_labels(result: SegmentationResult, x: np.ndarray, y: np.ndarray,
     return nearest_node_labels(result.node_x, result.node_y, result.node_labels, x, y, limit)
 
 
-
 def segment_normal_flow(
     x: np.ndarray,
     y: np.ndarray,
@@ -181,7 +180,6 @@ def segment_normal_flow(
     """
     prepared = prepare_window(x, y, t, nx, ny, uncertainty, config, sensor_size, event_xy)
     return segment_prepared(prepared, previous, tracked_objects)
-
 
 
 def segment_prepared(
@@ -475,8 +473,6 @@ def _unexplained_regions(lost, edges, min_nodes, max_regions):
     rank[big] = np.arange(len(big))
     out[lost] = rank[comp[lost]]
     return out
-
-
 
 
 def _merge_duplicates(models, data, labels, h, tol_px_s, radius_px, edges, edge_w):
