@@ -110,12 +110,13 @@ def evaluate_pipeline(quick: bool = False, flow: str = "learned", seeds=None, **
     return rows
 
 
-def evaluate_pipeline_and_oracle(quick: bool = False) -> list[dict]:
-    """``evseg eval pipeline``: :func:`evaluate_pipeline` with the shipped learned flow (every
-    scene's row and the pooled rows), then the pooled rows of the same scenes run through the
-    same pipeline with the simulator's ground-truth normal flow (``flow="precomputed"``), which
-    tell what the flow's errors cost from what the segmentation misses by itself."""
-    rows = evaluate_pipeline(quick)
+def evaluate_pipeline_and_oracle(quick: bool = False, model_path: str | None = None) -> list[dict]:
+    """``evseg eval pipeline``: :func:`evaluate_pipeline` with the learned flow (``model_path``,
+    default the shipped model; every scene's row and the pooled rows), then the pooled rows of
+    the same scenes run through the same pipeline with the simulator's ground-truth normal flow
+    (``flow="precomputed"``), which tell what the flow's errors cost from what the segmentation
+    misses by itself."""
+    rows = evaluate_pipeline(quick, model_path=None if model_path is None else str(model_path))
     for r in evaluate_pipeline(quick, flow="precomputed"):
         if r["scene"].startswith("**"):
             rows.append({**r, "scene": r["scene"][:-2] + ", ground-truth flow**"})

@@ -54,3 +54,32 @@ def test_bench_and_eval_tables_name_the_machine_and_its_speed(tmp_path, capsys):
     assert first.startswith("machine: ") and "cores" in first and "OMP_NUM_THREADS=" in first
     assert re.search(r"speed reference \d+\.\d ms", first)
     assert capsys.readouterr().out.splitlines()[0] == first
+
+
+def test_model_option_only_where_a_learned_flow_runs(capsys):
+    assert main(["eval", "seg", "--model", "m.onnx"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["evseg eval: error: --model applies to flow, flow-real, pipeline, not to 'seg'"]
+
+
+def test_model_option_names_a_missing_file_before_the_run(tmp_path, capsys):
+    missing = tmp_path / "missing.onnx"
+    assert main(["bench", "flow", "--model", str(missing)]) == 2
+    assert capsys.readouterr().err.strip() == f"evseg bench: error: {missing}: model file not found"
+
+
+def test_model_option_reaches_the_evaluation(monkeypatch, tmp_path):
+    """`evseg eval flow --model M` evaluates M (the evaluation function gets its path)."""
+    import evseg.train.evaluate as evaluate
+    from evseg.veckm_flow.inference import DEFAULT_MODEL
+
+    seen = {}
+
+    def fake(quick, model_path=None):
+        seen.update(quick=quick, model_path=model_path)
+        return [{"preset": "overall", "ae_learned": 1.0}]
+
+    monkeypatch.setattr(evaluate, "evaluate_flow", fake)
+    assert main(["eval", "flow", "--quick", "--model", str(DEFAULT_MODEL), "--out", str(tmp_path / "t.md")]) == 0
+    assert seen == {"quick": True, "model_path": DEFAULT_MODEL}
+    assert "| overall | 1 |" in (tmp_path / "t.md").read_text()

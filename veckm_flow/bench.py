@@ -38,10 +38,13 @@ def synthetic_slice(n_events: int, seed: int = 0) -> np.ndarray:
     return ev[keep]
 
 
-def _estimator():
-    """(estimator, label): the shipped model, or a random-weights head of the default size."""
+def _estimator(model_path: str | Path | None = None):
+    """(estimator, label): ``model_path``, else the shipped model, else a random-weights head
+    of the default size."""
     from evseg.veckm_flow.inference import DEFAULT_MODEL, OnnxNormalFlow
 
+    if model_path is not None:
+        return OnnxNormalFlow(model_path), f"model {Path(model_path).name}"
     if DEFAULT_MODEL.is_file():
         return OnnxNormalFlow(), "shipped model"
     from evseg.export import export_onnx
@@ -66,12 +69,14 @@ def _time_learned(est, ev, targets, repeats: int) -> tuple[float, float, float, 
     return float(np.median(enc)), float(np.median(net)), float(np.median(tot)), float(np.min(tot))
 
 
-def benchmark(repeats: int, quick: bool) -> list[dict]:
+def benchmark(repeats: int, quick: bool, model_path: str | Path | None = None) -> list[dict]:
+    """Rows per slice size for the learned flow (``model_path``, default the shipped model),
+    then the plane-fit baseline on the 100 k-event slice."""
     import numba
 
     from evseg.veckm_flow.baseline import PlaneFitNormalFlow
 
-    est, label = _estimator()
+    est, label = _estimator(model_path)
     threads = f"numba {numba.get_num_threads()}, ort default"
     rows = []
     sizes = [10_000, 100_000] if quick else [10_000, 30_000, 100_000, 300_000, 1_000_000]

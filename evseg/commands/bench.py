@@ -29,11 +29,30 @@ TARGETS = {
 }
 
 
+# Targets whose function takes ``model_path`` (a normal-flow ONNX file; default the shipped one).
+MODEL_TARGETS = ("flow",)
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("target", choices=sorted(TARGETS), help="what to time")
     p.add_argument("--repeats", type=int, default=5, help="timed runs per row (median reported)")
     p.add_argument("--quick", action="store_true", help="fewer and smaller inputs (smoke run)")
     p.add_argument("--out", type=Path, default=None, help="write the markdown table here too")
+    p.add_argument("--model", type=Path, default=None,
+                   help=f"normal-flow ONNX model (evseg export) instead of the shipped one; targets: {', '.join(MODEL_TARGETS)}")
+
+
+def model_options(args: argparse.Namespace, model_targets: tuple[str, ...]) -> dict:
+    """``{"model_path": ...}`` for a target that takes ``--model`` (checked up front, so a bad
+    file fails before a long run), ``{}`` without ``--model``."""
+    if args.model is None:
+        return {}
+    if args.target not in model_targets:
+        raise EvsegError(f"--model applies to {', '.join(model_targets)}, not to '{args.target}'")
+    from evseg.veckm_flow.inference import read_model_metadata
+
+    read_model_metadata(args.model)  # ModelError naming the file if it is not a normal-flow model
+    return {"model_path": args.model}
 
 
 def speed_reference_ms(repeats: int = 5) -> float:
@@ -110,5 +129,5 @@ def run(args: argparse.Namespace) -> int:
     if args.repeats < 1:
         raise EvsegError(f"--repeats must be at least 1, got {args.repeats}")
     fn = resolve_target("benchmark", TARGETS, args.target)
-    emit_table(fn(repeats=args.repeats, quick=args.quick), args.out)
+    emit_table(fn(repeats=args.repeats, quick=args.quick, **model_options(args, MODEL_TARGETS)), args.out)
     return 0

@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from evseg.commands.bench import emit_table, resolve_target
+from evseg.commands.bench import emit_table, model_options, resolve_target
 
 HELP = "evaluate accuracy on held-out simulated scenes and write a markdown table"
 
@@ -26,13 +26,19 @@ TARGETS = {
 }
 
 
+# Targets whose function takes ``model_path`` (a normal-flow ONNX file; default the shipped one).
+MODEL_TARGETS = ("flow", "flow-real", "pipeline")
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("target", choices=sorted(TARGETS), help="what to evaluate")
     p.add_argument("--quick", action="store_true", help="fewer and shorter scenes (smoke run)")
     p.add_argument("--out", type=Path, default=None, help="write the markdown table here too")
+    p.add_argument("--model", type=Path, default=None,
+                   help=f"normal-flow ONNX model (evseg export) instead of the shipped one; targets: {', '.join(MODEL_TARGETS)}")
 
 
 def run(args: argparse.Namespace) -> int:
     fn = resolve_target("evaluation", TARGETS, args.target)
-    emit_table(fn(quick=args.quick), args.out)
+    emit_table(fn(quick=args.quick, **model_options(args, MODEL_TARGETS)), args.out)
     return 0

@@ -17,3 +17,15 @@ def test_quick_benchmark_rows_name_their_input():
     assert [r["events"] for r in rows] == [10_000, 100_000, 100_000]
     assert rows[1]["targets"] == 10_000 and rows[-1]["method"] == "plane-fit baseline"
     assert all(np.isfinite(r["total_ms"]) and r["total_ms"] > 0 for r in rows)
+
+
+def test_benchmark_times_the_given_model(tmp_path):
+    """`evseg bench flow --model M` times M, and its rows say so (a 16-wide head here)."""
+    from evseg.export import export_onnx
+    from evseg.veckm_flow import EncodingConfig, build_head
+
+    cfg = EncodingConfig(polarity=True)
+    path = tmp_path / "small_head.onnx"
+    export_onnx(build_head(cfg, hidden=16), cfg, path)
+    rows = benchmark(repeats=1, quick=True, model_path=path)
+    assert [r["method"] for r in rows[:2]] == ["learned (model small_head.onnx)"] * 2
