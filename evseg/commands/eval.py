@@ -1,8 +1,9 @@
 """Accuracy evaluation: run a stage on held-out simulated scenes (or, for ``flow-real`` and
 ``pipeline-real``, on the shared real recordings) and write a markdown table.
 
-Each target is a function ``evaluate(quick: bool) -> list[dict]`` in the stage's package,
-returning one row per scene (or preset) and a final summary row. Simulated scenes for
+Each target is a function ``evaluate(quick: bool) -> list[dict]`` in the stage's package
+(those in ``MODEL_TARGETS`` also take ``model_path``, from ``--model``), returning one row per
+scene (or preset) and a final summary row. Simulated scenes for
 evaluation use seeds >= 1000; training only ever sees seeds < 1000.
 """
 
