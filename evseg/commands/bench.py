@@ -1,8 +1,9 @@
 """Benchmarks: time a pipeline stage and write a markdown table.
 
 Each target is a function ``benchmark(repeats: int, quick: bool) -> list[dict]`` in the
-stage's own package (those in ``MODEL_TARGETS`` also take ``model_path``, from ``--model``); every row names its input size (events, nodes, targets) and reports
-medians over ``repeats`` runs. This command only formats and writes the table.
+stage's own package (those in ``MODEL_TARGETS`` also take ``model_path``, from ``--model``);
+every row names its input size (events, nodes, targets) and reports medians over ``repeats``
+runs. This command only formats and writes the table.
 """
 
 from __future__ import annotations
