@@ -20,6 +20,14 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+# Only re-association of float sums (what lets LLVM vectorise the loops over the d features),
+# not all of fastmath: its 'contract' flag (fused multiply-add) is applied differently when a
+# kernel is compiled in the running process and when it is loaded from numba's cache, so the
+# first run after an install gave other features (~1e-6) and, rarely, other labels (58 of 6 M
+# events over 12 simulated scenes) than every later run. 'reassoc' alone gives the same bits
+# either way (tests/veckm_flow/test_encoding.py) and costs ~0-5 % of the encoding time.
+_FASTMATH = {"reassoc"}
+
 
 @njit(cache=True, nogil=True)
 def pixel_lists(x, y, dt, pol, width, height):  # pragma: no cover
@@ -47,7 +55,7 @@ def pixel_lists(x, y, dt, pol, width, height):  # pragma: no cover
     return start, sdt, spol, row_used
 
 
-@njit(cache=True, fastmath=True, inline="always")
+@njit(cache=True, fastmath=_FASTMATH, inline="always")
 def _spatial_phase(rows, cols, yy, xx, m):  # pragma: no cover
     """Feature ``m`` of the spatial phase of pixel ``(xx, yy)``: ``rows[yy, xx or 0] *
     cols[xx, 0]`` (``encoding.SpatialPhase``), as (real, imaginary)."""
@@ -59,7 +67,7 @@ def _spatial_phase(rows, cols, yy, xx, m):  # pragma: no cover
     return ar * br - ai * bi, ar * bi + ai * br
 
 
-@njit(cache=True, fastmath=True, inline="always")
+@njit(cache=True, fastmath=_FASTMATH, inline="always")
 def _pixel_value(p, start, sdt, spol, hi, lo, lo_bits, rows, cols, yy, u, out, slot):  # pragma: no cover
     """``out[slot] = phase(yy, u) * sum over the pixel's events of hi * lo`` (planar), with
     ``phase(yy, u) = rows[yy, u or 0] * cols[u, 0]`` (``encoding.SpatialPhase``)."""
@@ -83,7 +91,7 @@ def _pixel_value(p, start, sdt, spol, hi, lo, lo_bits, rows, cols, yy, u, out, s
         out[slot, 1, m] = fr * pi + fi * pr
 
 
-@njit(cache=True, fastmath=True, inline="always")
+@njit(cache=True, fastmath=_FASTMATH, inline="always")
 def _enter_box(start, sdt, spol, hi, lo, lo_bits, rows, cols, yy, u, row0, ring, box):  # pragma: no cover
     """Pixel ``(u, yy)`` enters the sliding box: its value goes to its ``ring`` slot and is
     added to ``box``; returns its event count (0: nothing to do)."""
@@ -97,7 +105,7 @@ def _enter_box(start, sdt, spol, hi, lo, lo_bits, rows, cols, yy, u, row0, ring,
     return n
 
 
-@njit(cache=True, fastmath=True, inline="always")
+@njit(cache=True, fastmath=_FASTMATH, inline="always")
 def _row_box(start, sdt, spol, hi, lo, lo_bits, rows, cols, k, yy, x0, x1, W, ring, box, out, cnt):  # pragma: no cover
     """Row ``yy``'s box sums along x (``|dx| <= k``) of the per-pixel field ``phase * sum_events
     hi * lo`` for columns ``x0 <= x < x1``: ``out[x - x0]`` (planar) and counts ``cnt[x - x0]``.
@@ -133,32 +141,33 @@ def _row_box(start, sdt, spol, hi, lo, lo_bits, rows, cols, k, yy, x0, x1, W, ri
             out[xx - x0, 1, m] = box[1, m]
 
 
-@njit(cache=True, fastmath=True, inline="always")
-def _emit(r, o, xx, yy, y_lo, y_hi, x0, row_sums, row_cnt, tdt, tpol, rows, cols, hi, lo, lo_bits, out):  # pragma: no cover
+@njit(cache=True, fastmath=_FASTMATH, inline="always")
+def _emit(r, o, xx, yy, y_lo, y_hi, x0, row_sums, row_cnt, tdt, tpol, rows, cols, hi, lo, lo_bits, out, acc):  # pragma: no cover
     """Features of target ``r`` (pixel ``(xx, yy)``) into ``out[o]``: the sum of the row box sums
     of rows ``y_lo..y_hi`` (held in the row ring), times ``conj(phase * hi * lo)`` of the target
-    itself, rescaled to norm sqrt(d), then ``log(1 + n)``."""
+    itself, rescaled to norm sqrt(d), then ``log(1 + n)``. ``acc`` is a (2, d) scratch of the
+    calling thread (summing there rather than in ``out`` lets LLVM keep the loop vectorised)."""
     d = hi.shape[2]
     nrow = row_sums.shape[0]
     mask = (1 << lo_bits) - 1
     c = xx - x0
     for m in range(d):
-        out[o, m] = 0.0
-        out[o, d + m] = 0.0
+        acc[0, m] = 0.0
+        acc[1, m] = 0.0
     cnt = 0
     for row in range(y_lo, y_hi + 1):
         sl = row % nrow
         cnt += row_cnt[sl, c]
         for m in range(d):
-            out[o, m] += row_sums[sl, c, 0, m]
-            out[o, d + m] += row_sums[sl, c, 1, m]
+            acc[0, m] += row_sums[sl, c, 0, m]
+            acc[1, m] += row_sums[sl, c, 1, m]
     h = tdt[r] >> lo_bits
     l = tdt[r] & mask
     q = tpol[r]
     s = np.float32(0.0)
     for m in range(d):
-        gr = out[o, m]
-        gi = out[o, d + m]
+        gr = acc[0, m]
+        gi = acc[1, m]
         tr = hi[h, 0, m] * lo[q, l, 0, m] - hi[h, 1, m] * lo[q, l, 1, m]
         ti = hi[h, 0, m] * lo[q, l, 1, m] + hi[h, 1, m] * lo[q, l, 0, m]
         sr, si = _spatial_phase(rows, cols, yy, xx, m)
@@ -166,16 +175,17 @@ def _emit(r, o, xx, yy, y_lo, y_hi, x0, row_sums, row_cnt, tdt, tpol, rows, cols
         pi = -(sr * ti + si * tr)
         vr = gr * pr - gi * pi
         vi = gr * pi + gi * pr
-        out[o, m] = vr
-        out[o, d + m] = vi
+        acc[0, m] = vr
+        acc[1, m] = vi
         s += vr * vr + vi * vi
     f = np.float32(np.sqrt(np.float32(d))) / max(np.sqrt(s), np.float32(1e-12))
-    for m in range(2 * d):
-        out[o, m] *= f
+    for m in range(d):
+        out[o, m] = acc[0, m] * f
+        out[o, d + m] = acc[1, m] * f
     out[o, 2 * d] = np.log1p(np.float32(cnt))
 
 
-@njit(cache=True, parallel=True, fastmath=True, nogil=True)
+@njit(cache=True, parallel=True, fastmath=_FASTMATH, nogil=True)
 def window_features(start, sdt, spol, hi, lo, lo_bits, row_used, rows, cols, k, nblk,
                     tx, ty, tdt, tpol, slot, blk_start):  # pragma: no cover
     """Features (T, 2d+1) float32 of the targets: for each, the sum over its (2k+1)^2 pixel
@@ -202,6 +212,7 @@ def window_features(start, sdt, spol, hi, lo, lo_bits, row_used, rows, cols, k, 
         x1 = (c + 1) * W // nblk
         bw = x1 - x0
         box = np.empty((2, d), np.float32)
+        acc = np.empty((2, d), np.float32)
         ring = np.empty((2 * k + 2, 2, d), np.float32)
         row_sums = np.zeros((nrow, bw, 2, d), np.float32)
         row_cnt = np.zeros((nrow, bw), np.int64)
@@ -217,11 +228,11 @@ def window_features(start, sdt, spol, hi, lo, lo_bits, row_used, rows, cols, k, 
                 row_cnt[sl] = 0
             while r < r_end and ty[r] + k <= yy:
                 _emit(r, slot[r], tx[r], ty[r], max(ty[r] - k, 0), yy, x0, row_sums, row_cnt,
-                      tdt, tpol, rows, cols, hi, lo, lo_bits, out)
+                      tdt, tpol, rows, cols, hi, lo, lo_bits, out, acc)
                 r += 1
         while r < r_end:  # windows cut by the bottom edge: rows ty - k .. H - 1
             _emit(r, slot[r], tx[r], ty[r], max(ty[r] - k, 0), H - 1, x0, row_sums, row_cnt,
-                  tdt, tpol, rows, cols, hi, lo, lo_bits, out)
+                  tdt, tpol, rows, cols, hi, lo, lo_bits, out, acc)
             r += 1
     return out
 

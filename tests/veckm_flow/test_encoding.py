@@ -212,3 +212,39 @@ def test_phase_table_of_the_wrong_shape_is_refused(make_slice):
     ev = make_slice(100, (40, 30))
     with pytest.raises(EventDataError, match="phase_xy has shape"):
         encode_targets(ev, np.arange(10), (40, 30), cfg, phase_xy=spatial_phase_factors(cfg, (30, 40)))
+
+
+_FRESH_OR_CACHED = """
+import sys
+import numpy as np
+from evseg.veckm_flow import EncodingConfig, encode_targets
+from evseg.veckm_flow.encoding import spatial_phase
+from evseg.veckm_flow.bench import SENSOR, synthetic_slice
+
+cfg = EncodingConfig(polarity=True)  # the shipped model's width (d = 32)
+ev = synthetic_slice(30_000, seed=3)
+targets = np.arange(0, len(ev), 3)
+raw = encode_targets(ev, targets, SENSOR, cfg)
+full = encode_targets(ev, targets, SENSOR, cfg, phase_xy=spatial_phase(cfg, SENSOR))
+np.save(sys.argv[1], np.concatenate([raw, full]))
+"""
+
+
+def test_features_are_the_same_compiled_fresh_and_loaded_from_numba_cache(tmp_path):
+    # The first run after an install compiles the encoder's kernels; every later run loads
+    # them from numba's cache. Both must give the same bits, or the first run's labels differ
+    # (fastmath's fused multiply-add did: ~1e-6 in the features).
+    import os
+    import subprocess
+    import sys
+
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba_cache"))
+    outs = []
+    for run in ("fresh", "cached"):
+        out = tmp_path / f"{run}.npy"
+        subprocess.run([sys.executable, "-c", _FRESH_OR_CACHED, str(out)], env=env, check=True, timeout=300)
+        outs.append(np.load(out))
+        if run == "fresh":  # otherwise the second run would compile afresh too and prove nothing
+            assert list((tmp_path / "numba_cache").rglob("*window_features*.nbi"))
+    assert outs[0].shape == (20_000, 65)
+    np.testing.assert_array_equal(outs[0], outs[1])
