@@ -30,11 +30,33 @@ _FASTMATH = {"reassoc"}
 
 
 @njit(cache=True, nogil=True)
-def pixel_lists(x, y, dt, pol, width, height):  # pragma: no cover
+def slice_extent(x, y, t):  # pragma: no cover
+    """``(max x, max y, min t, max t)`` of a non-empty slice; reads the event fields in place
+    (strided views of the structured array are fine), so no field is copied."""
+    mx = np.int64(x[0])
+    my = np.int64(y[0])
+    t_lo = t[0]
+    t_hi = t[0]
+    for j in range(1, x.shape[0]):
+        if x[j] > mx:
+            mx = np.int64(x[j])
+        if y[j] > my:
+            my = np.int64(y[j])
+        if t[j] < t_lo:
+            t_lo = t[j]
+        if t[j] > t_hi:
+            t_hi = t[j]
+    return mx, my, t_lo, t_hi
+
+
+@njit(cache=True, nogil=True)
+def pixel_lists(x, y, t, p, t0, polarity, width, height):  # pragma: no cover
     """Counting sort of the events by pixel: ``(start (H*W + 1,), sdt (N,), spol (N,),
-    row_used (H,))``; the events of pixel ``p = y * W + x`` have times ``sdt[start[p]:start[p+1]]``
-    (us, input order) and polarity indices ``spol[...]``. Times and polarities are copied in
-    pixel order so that the box pass reads them sequentially. O(N + W H)."""
+    row_used (H,))``; the events of pixel ``q = y * W + x`` have times
+    ``sdt[start[q]:start[q+1]]`` (us since ``t0``, input order) and polarity indices ``spol[...]``
+    (1 for ``p > 0`` when ``polarity``, else 0). Times and polarities are copied in pixel order
+    so that the box pass reads them sequentially. O(N + W H). Coordinates must lie on the
+    sensor (callers check with :func:`slice_extent`)."""
     n = x.shape[0]
     npix = width * height
     start = np.zeros(npix + 1, np.int64)
@@ -42,17 +64,61 @@ def pixel_lists(x, y, dt, pol, width, height):  # pragma: no cover
     for j in range(n):
         start[np.int64(y[j]) * width + x[j] + 1] += 1
         row_used[y[j]] = True
-    for p in range(npix):
-        start[p + 1] += start[p]
+    for q in range(npix):
+        start[q + 1] += start[q]
     fill = start[:-1].copy()
     sdt = np.empty(n, np.int64)
-    spol = np.empty(n, np.int8)
+    spol = np.zeros(n, np.int8)
     for j in range(n):
-        p = np.int64(y[j]) * width + x[j]
-        sdt[fill[p]] = dt[j]
-        spol[fill[p]] = pol[j]
-        fill[p] += 1
+        q = np.int64(y[j]) * width + x[j]
+        sdt[fill[q]] = t[j] - t0
+        if polarity and p[j] > 0:
+            spol[fill[q]] = 1
+        fill[q] += 1
     return start, sdt, spol, row_used
+
+
+@njit(cache=True, nogil=True)
+def order_targets(targets, x, y, t, p, t0, polarity, width, height, nblk):  # pragma: no cover
+    """The targets in the order the box pass completes them: grouped by column block (block
+    ``c`` spans columns ``c W // nblk`` to ``(c + 1) W // nblk``), by row within a block, input
+    order among equals (a stable counting sort). Returns ``(order, tx, ty, tdt, tpol,
+    blk_start)``: ``order[r]`` is the row of ``targets`` placed r-th, then that target's column,
+    row, time since ``t0`` (us) and polarity index, and the first position of each block
+    (``nblk + 1``)."""
+    block_of = np.empty(width, np.int64)
+    for c in range(nblk):
+        for col in range(c * width // nblk, (c + 1) * width // nblk):
+            block_of[col] = c
+    nkey = nblk * height
+    first = np.zeros(nkey + 1, np.int64)
+    nt = targets.shape[0]
+    key = np.empty(nt, np.int64)
+    for r in range(nt):
+        i = targets[r]
+        key[r] = block_of[np.int64(x[i])] * height + y[i]
+        first[key[r] + 1] += 1
+    for k in range(nkey):
+        first[k + 1] += first[k]
+    blk_start = np.empty(nblk + 1, np.int64)
+    for c in range(nblk + 1):
+        blk_start[c] = first[c * height]
+    order = np.empty(nt, np.int64)
+    for r in range(nt):
+        order[first[key[r]]] = r
+        first[key[r]] += 1
+    tx = np.empty(nt, np.int64)
+    ty = np.empty(nt, np.int64)
+    tdt = np.empty(nt, np.int64)
+    tpol = np.zeros(nt, np.int8)
+    for o in range(nt):
+        i = targets[order[o]]
+        tx[o] = x[i]
+        ty[o] = y[i]
+        tdt[o] = t[i] - t0
+        if polarity and p[i] > 0:
+            tpol[o] = 1
+    return order, tx, ty, tdt, tpol, blk_start
 
 
 @njit(cache=True, fastmath=_FASTMATH, inline="always")

@@ -248,3 +248,32 @@ def test_features_are_the_same_compiled_fresh_and_loaded_from_numba_cache(tmp_pa
             assert list((tmp_path / "numba_cache").rglob("*window_features*.nbi"))
     assert outs[0].shape == (20_000, 65)
     np.testing.assert_array_equal(outs[0], outs[1])
+
+
+@pytest.mark.parametrize("width,height", [(40, 30), (346, 260), (1000, 7)])
+def test_targets_are_ordered_by_column_block_then_row_stably(width, height):
+    # The box pass completes windows block by block, row by row; the compiled counting sort
+    # must give the plain numpy rule's permutation (stable: duplicates keep input order).
+    from evseg.events import EVENT_DTYPE
+    from evseg.veckm_flow import _kernels
+    from evseg.veckm_flow.encoding import _BLOCK_COLUMNS
+
+    rng = np.random.default_rng(width)
+    ev = np.zeros(3000, EVENT_DTYPE)
+    ev["x"] = rng.integers(0, width, len(ev))
+    ev["y"] = rng.integers(0, height, len(ev))
+    ev["t"] = np.sort(rng.integers(5_000, 50_000, len(ev)))
+    ev["p"] = rng.choice([-1, 1], len(ev))
+    targets = rng.integers(0, len(ev), 1500)  # with repeats
+    nblk = max(1, -(-width // _BLOCK_COLUMNS))
+    order, tx, ty, tdt, tpol, blk_start = _kernels.order_targets(
+        targets, ev["x"], ev["y"], ev["t"], ev["p"], 4_000, True, width, height, nblk)
+    x, y = ev["x"][targets].astype(np.int64), ev["y"][targets].astype(np.int64)
+    blk = np.searchsorted(np.arange(nblk + 1) * width // nblk, x, side="right") - 1
+    expect = np.argsort(blk * height + y, kind="stable")
+    np.testing.assert_array_equal(order, expect)
+    np.testing.assert_array_equal(tx, x[expect])
+    np.testing.assert_array_equal(ty, y[expect])
+    np.testing.assert_array_equal(tdt, ev["t"][targets][expect] - 4_000)
+    np.testing.assert_array_equal(tpol, (ev["p"][targets][expect] > 0).astype(np.int8))
+    np.testing.assert_array_equal(blk_start, np.searchsorted(blk[expect], np.arange(nblk + 1)))
