@@ -341,6 +341,10 @@ def encode_targets(
     max_x, max_y, t0, t1 = _kernels.slice_extent(x, y, t)
     if max_x >= width or max_y >= height:
         raise EventDataError(f"events lie outside the {width}x{height} sensor")
+    if int(t1) - int(t0) > _kernels.MAX_SPAN_US:
+        raise EventDataError(
+            f"the slice spans {(int(t1) - int(t0)) / 1e6:.0f} s; the encoder takes slices of at most "
+            f"{_kernels.MAX_SPAN_US / 1e6:.0f} s (it encodes a neighbourhood of milliseconds)")
     # Times enter as us since the slice's first event (t0): int64, exact.
     hi, lo = _planar_time_tables(cfg, int(t1) - int(t0), matrix)
     # Column blocks of a fixed width, not one per thread: each block restarts its sliding

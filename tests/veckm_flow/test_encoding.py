@@ -152,6 +152,12 @@ def test_bad_targets_and_events_raise(make_slice):
     with pytest.raises(EventDataError, match="outside"):
         encode_targets(ev, np.array([0]), (4, 4), cfg)
     assert encode_targets(ev, np.zeros(0, np.int64), (8, 8), cfg).shape == (0, 9)
+    long = ev.copy()
+    long["t"][-1] = long["t"][0] + (1 << 30)  # 17.9 min after the first event
+    with pytest.raises(EventDataError, match="the slice spans 1074 s"):
+        encode_targets(long, np.array([0]), (8, 8), cfg)
+    long["t"][-1] -= 1  # the longest span taken
+    assert encode_targets(long, np.array([0]), (8, 8), cfg).shape == (1, 9)
 
 
 def test_calibrated_encoding_matches_reference_with_undistorted_positions(make_slice):
