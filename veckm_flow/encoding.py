@@ -337,7 +337,7 @@ def encode_targets(
         raise EventDataError(f"phase_xy has shape {phase_xy.shape}, expected {(height, width, cfg.d)}")
     if len(targets) == 0:
         return np.zeros((0, cfg.n_features), np.float32)
-    x, y, t, p = events["x"], events["y"], events["t"], events["p"]  # views: the kernels read them in place
+    x, y, t, p = events["x"], events["y"], events["t"], events["p"]  # views, read in place
     max_x, max_y, t0, t1 = _kernels.slice_extent(x, y, t)
     if max_x >= width or max_y >= height:
         raise EventDataError(f"events lie outside the {width}x{height} sensor")
@@ -345,7 +345,7 @@ def encode_targets(
         raise EventDataError(
             f"the slice spans {(int(t1) - int(t0)) / 1e6:.0f} s; the encoder takes slices of at most "
             f"{_kernels.MAX_SPAN_US / 1e6:.0f} s (it encodes a neighbourhood of milliseconds)")
-    # Times enter as us since the slice's first event (t0): int64, exact.
+    # Times enter as integer us since the slice's first event (t0): exact.
     hi, lo = _planar_time_tables(cfg, int(t1) - int(t0), matrix)
     # Column blocks of a fixed width, not one per thread: each block restarts its sliding
     # float32 sums, so a thread-dependent split would make the features (and every label
