@@ -232,7 +232,7 @@ def _emit(r, o, xx, yy, y_lo, y_hi, x0, row_sums, row_cnt, tdt, tpol, rows, cols
     """Features of target ``r`` (pixel ``(xx, yy)``) into ``out[o]``: the sum of the row box sums
     of rows ``y_lo..y_hi`` (held in the row ring), times ``conj(phase * hi * lo)`` of the target
     itself, rescaled to norm sqrt(d), then ``log(1 + n)``. ``acc`` is a (2, d) scratch of the
-    calling thread (summing there rather than in ``out`` lets LLVM keep the loop vectorised)."""
+    calling thread: summing there rather than in ``out`` measured ~2-4 % faster (one thread)."""
     d = hi.shape[2]
     nrow = row_sums.shape[0]
     mask = (1 << lo_bits) - 1
