@@ -135,6 +135,13 @@ class PipelineConfig:
         ctx = self.flow_context_us
         if not (isinstance(ctx, (int, np.integer)) or (isinstance(ctx, float) and ctx.is_integer())) or ctx < 0:
             raise ConfigError(f"pipeline.flow_context_us must be a non-negative integer (us), got {ctx!r}")
+        if self.flow == "learned":
+            from evseg.veckm_flow._kernels import MAX_SPAN_US
+
+            if int(self.window_us) + int(ctx) > MAX_SPAN_US:
+                raise ConfigError(
+                    f"pipeline.window_us + flow_context_us must be at most {MAX_SPAN_US} us (the learned "
+                    f"flow's longest slice), got {self.window_us} + {ctx}")
 
 
 @dataclass

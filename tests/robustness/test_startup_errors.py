@@ -177,6 +177,16 @@ def test_bad_options(extra, field, tmp_path, capsys, sim_files):
     _segment_fails_cleanly(capsys, tmp_path, recording, extra, [field])
 
 
+def test_learned_flow_context_beyond_the_encoders_longest_slice(tmp_path, capsys, sim_files):
+    # The learned flow encodes at most 2^30 us (17.9 min) per slice: refused before any work.
+    _, recording, _ = sim_files
+    out = tmp_path / "r.npz"
+    assert main(["segment", str(recording), "--out", str(out), "--flow-context-ms", "2e6", "--no-progress"]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and "--window-ms plus --flow-context-ms must be at most 1073742 ms" in lines[0]
+    assert not out.exists()
+
+
 # ------------------------------------------------------------------ scene presets (evseg simulate)
 SCENES = {
     "unknown top-level key": ("sensr: {width: 64, height: 48}\n", "sensr"),

@@ -75,3 +75,6 @@ def test_flow_option_errors_are_user_errors(recording, tmp_path, capsys):
     assert main(["flow", str(path), "--out", str(tmp_path / "x.npz"), "--context-ms", "-1"]) == 2
     assert "none.onnx" in capsys.readouterr().err
     assert not (tmp_path / "x.npz").exists()
+    # A context beyond the encoder's longest slice (17.9 min) is refused before reading.
+    assert main(["flow", str(path), "--out", str(tmp_path / "x.npz"), "--context-ms", "2e6"]) == 2
+    assert "--context-ms must be at most" in capsys.readouterr().err
