@@ -136,11 +136,11 @@ class PipelineConfig:
         if not (isinstance(ctx, (int, np.integer)) or (isinstance(ctx, float) and ctx.is_integer())) or ctx < 0:
             raise ConfigError(f"pipeline.flow_context_us must be a non-negative integer (us), got {ctx!r}")
         if self.flow == "learned":
-            from evseg.veckm_flow._kernels import MAX_SPAN_US
+            from evseg.veckm_flow.encoding import MAX_SLICE_SPAN_US
 
-            if int(self.window_us) + int(ctx) > MAX_SPAN_US:
+            if int(self.window_us) + int(ctx) > MAX_SLICE_SPAN_US:
                 raise ConfigError(
-                    f"pipeline.window_us + flow_context_us must be at most {MAX_SPAN_US} us (the learned "
+                    f"pipeline.window_us + flow_context_us must be at most {MAX_SLICE_SPAN_US} us (the learned "
                     f"flow's longest slice), got {self.window_us} + {ctx}")
 
 

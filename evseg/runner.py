@@ -63,11 +63,12 @@ def build_pipeline_config(job: SegmentJob):
     if job.min_track_windows < 1:
         raise ConfigError(f"--min-track-windows must be >= 1, got {job.min_track_windows}")
     if job.flow_file is None and job.flow_method == "learned":
-        from evseg.veckm_flow._kernels import MAX_SPAN_US
+        from evseg.veckm_flow.encoding import MAX_SLICE_SPAN_US
 
-        if (job.window_ms + job.flow_context_ms) * 1000 > MAX_SPAN_US:
-            raise ConfigError(f"--window-ms plus --flow-context-ms must be at most {MAX_SPAN_US / 1000:.0f} ms "
-                              f"(the learned flow's longest slice), got {job.window_ms} + {job.flow_context_ms}")
+        if (job.window_ms + job.flow_context_ms) * 1000 > MAX_SLICE_SPAN_US:
+            raise ConfigError(
+                f"--window-ms plus --flow-context-ms must be at most {MAX_SLICE_SPAN_US / 1000:.0f} ms "
+                f"(the learned flow's longest slice), got {job.window_ms} + {job.flow_context_ms}")
     seg = load_segmentation_config(job.config) if job.config else SegmentationConfig()
     return PipelineConfig(
         window_us=int(round(job.window_ms * 1000)),

@@ -209,12 +209,12 @@ def test_bad_flow_context_is_a_config_error(bad):
 
 
 def test_learned_flow_context_longer_than_the_encoder_takes_is_a_config_error():
-    from evseg.veckm_flow._kernels import MAX_SPAN_US
+    from evseg.veckm_flow.encoding import MAX_SLICE_SPAN_US
 
     with pytest.raises(ConfigError, match="window_us \\+ flow_context_us must be at most 1073741823 us"):
-        PipelineConfig(window_us=10_000, flow_context_us=MAX_SPAN_US)
-    PipelineConfig(window_us=10_000, flow_context_us=MAX_SPAN_US - 10_000)  # the longest taken
-    PipelineConfig(flow="planefit", window_us=10_000, flow_context_us=MAX_SPAN_US)  # no such limit
+        PipelineConfig(window_us=10_000, flow_context_us=MAX_SLICE_SPAN_US)
+    PipelineConfig(window_us=10_000, flow_context_us=MAX_SLICE_SPAN_US - 10_000)  # the longest taken
+    PipelineConfig(flow="planefit", window_us=10_000, flow_context_us=MAX_SLICE_SPAN_US)  # no such limit
 
 
 def _final_bar(err: str) -> str:

@@ -49,9 +49,9 @@ def slice_extent(x, y, t):  # pragma: no cover
     return mx, my, t_lo, t_hi
 
 
-MAX_SPAN_US = (1 << 30) - 1
-"""Longest time span of a slice (us, ~17.9 min) that :func:`pixel_lists` takes: times since the
-slice's start are kept as int32 with the polarity in bit 30."""
+_TIME_MASK = np.int32((1 << 30) - 1)
+"""Times since the slice's start (us) are kept as int32 with the polarity in bit 30, so a slice
+spans at most 2^30 - 1 us (``encoding.MAX_SLICE_SPAN_US``, checked by the caller)."""
 
 
 @njit(cache=True, parallel=True, nogil=True)
@@ -61,7 +61,7 @@ def pixel_lists(x, y, t, p, t0, polarity, width, height):  # pragma: no cover
     ``sdt[start[q]:start[q+1]]`` (us since ``t0``, input order) and polarity indices ``spol[...]``
     (1 for ``p > 0`` when ``polarity``, else 0). Times and polarities are copied in pixel order
     so that the box pass reads them sequentially. O(N + W H). Coordinates must lie on the
-    sensor and times within ``MAX_SPAN_US`` of ``t0`` (callers check with :func:`slice_extent`).
+    sensor and times within 2^30 - 1 us of ``t0`` (callers check with :func:`slice_extent`).
 
     The event fields are read once, in parallel, into compact int32 arrays (pixel; time with
     the polarity in bit 30): the two serial counting passes then touch 8 bytes per event
@@ -92,7 +92,7 @@ def pixel_lists(x, y, t, p, t0, polarity, width, height):  # pragma: no cover
         q = pix[j]
         f = fill[q]
         v = tp[j]
-        sdt[f] = v & np.int32(MAX_SPAN_US)
+        sdt[f] = v & _TIME_MASK
         spol[f] = np.int8(v >> 30)
         fill[q] = f + 1
     return start, sdt, spol, row_used

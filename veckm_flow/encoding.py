@@ -61,6 +61,9 @@ _LO_BITS = 10
 _LO_SIZE = 1 << _LO_BITS
 # Width (px) of the column blocks of the grid pass that threads share.
 _BLOCK_COLUMNS = 96
+# Longest time span of a slice the encoder takes (us, ~17.9 min): the kernels keep times since
+# the slice's start as int32 (see _kernels.pixel_lists). Window plus context must fit in it.
+MAX_SLICE_SPAN_US = (1 << 30) - 1
 
 
 @dataclass(frozen=True)
@@ -341,10 +344,10 @@ def encode_targets(
     max_x, max_y, t0, t1 = _kernels.slice_extent(x, y, t)
     if max_x >= width or max_y >= height:
         raise EventDataError(f"events lie outside the {width}x{height} sensor")
-    if int(t1) - int(t0) > _kernels.MAX_SPAN_US:
+    if int(t1) - int(t0) > MAX_SLICE_SPAN_US:
         raise EventDataError(
             f"the slice spans {(int(t1) - int(t0)) / 1e6:.0f} s; the encoder takes slices of at most "
-            f"{_kernels.MAX_SPAN_US / 1e6:.0f} s (it encodes a neighbourhood of milliseconds)")
+            f"{MAX_SLICE_SPAN_US / 1e6:.0f} s (it encodes a neighbourhood of milliseconds)")
     # Times enter as integer us since the slice's first event (t0): exact.
     hi, lo = _planar_time_tables(cfg, int(t1) - int(t0), matrix)
     # Column blocks of a fixed width, not one per thread: each block restarts its sliding

@@ -81,11 +81,12 @@ def run(args: argparse.Namespace) -> int:
         raise EvsegError(f"--cell-px must be at least 1, got {args.cell_px}")
     window_us = max(1, int(round(args.window_ms * 1000)))
     if not args.baseline:
-        from evseg.veckm_flow._kernels import MAX_SPAN_US
+        from evseg.veckm_flow.encoding import MAX_SLICE_SPAN_US
 
-        if window_us + args.context_ms * 1000 > MAX_SPAN_US:
-            raise EvsegError(f"--window-ms plus --context-ms must be at most {MAX_SPAN_US / 1000:.0f} ms "
-                             f"(the learned flow's longest slice), got {args.window_ms} + {args.context_ms}")
+        if window_us + args.context_ms * 1000 > MAX_SLICE_SPAN_US:
+            raise EvsegError(
+                f"--window-ms plus --context-ms must be at most {MAX_SLICE_SPAN_US / 1000:.0f} ms "
+                f"(the learned flow's longest slice), got {args.window_ms} + {args.context_ms}")
     est, info = _estimator(args)
     sensor = parse_sensor_size(args.sensor_size) if args.sensor_size else None
     t_start = time.perf_counter()
