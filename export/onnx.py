@@ -1,7 +1,7 @@
 """ONNX export of the normal-flow head with everything needed to rebuild its encoder.
 
 The exported graph is the head only (the O(N) encoding runs in numpy/numba, see
-:mod:`evseg.veckm_flow.encoding`): input ``features`` float32 ``(T, 2 d + 1)``, output
+:mod:`evseg.veckm_flow.encoding`): input ``features`` float32 ``(T, levels (2 d + 1))``, output
 ``head_out`` float32 ``(T, 3)``, ``T`` dynamic. Opset pinned to 17. The encoding constants and
 the random matrix go into ``metadata_props`` (format in :mod:`evseg.veckm_flow.inference`).
 """

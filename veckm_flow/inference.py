@@ -1,13 +1,13 @@
 """Normal flow with onnxruntime on CPU: encoder rebuilt from the ONNX file, no torch.
 
 The ONNX file (written by :func:`evseg.export.export_onnx`) holds the head, one input
-``features`` float32 ``(T, 2 d + 1)`` (T dynamic) and one output ``head_out`` float32 ``(T, 3)``
+``features`` float32 ``(T, levels (2 d + 1))`` (T dynamic) and one output ``head_out`` float32 ``(T, 3)``
 (see :mod:`evseg.veckm_flow.result` for its units), and in its metadata (``metadata_props``):
 
 - ``evseg.format``: ``"evseg-normal-flow/1"``
 - ``evseg.encoding``: JSON of :class:`~evseg.veckm_flow.EncodingConfig`
-- ``evseg.matrix``: JSON ``(3, d)`` list of the random matrix (rows x, y, t; a fourth row,
-  polarity, when the encoding uses it)
+- ``evseg.matrix``: JSON ``(3, levels d)`` list of the random matrix (rows x, y, t; a fourth
+  row, polarity, when the encoding uses it; one block of ``d`` columns per pyramid level)
 - ``evseg.flow_unit_px_s``: px/s of one head output unit (a check, derived from the encoding)
 - ``evseg.head``: JSON of the head's constructor arguments (informative)
 """
@@ -28,7 +28,7 @@ from evseg.veckm_flow.encoding import (
     SpatialPhase,
     _validate_targets,
     encode_targets,
-    spatial_phase_factors,
+    pyramid_phases,
     undistorted_to_sensor_flow,
 )
 from evseg.veckm_flow.result import NormalFlow, head_output_to_flow
@@ -60,8 +60,8 @@ def _parse_metadata(path: Path, meta: dict) -> tuple[EncodingConfig, np.ndarray]
         unit = float(meta["evseg.flow_unit_px_s"])
     except (ValueError, TypeError) as exc:
         raise ModelError(f"{path}: metadata field is malformed: {exc}") from None
-    if matrix.shape != (cfg.n_coords, cfg.d):
-        raise ModelError(f"{path}: metadata 'evseg.matrix' has shape {matrix.shape}, expected ({cfg.n_coords}, {cfg.d})")
+    if matrix.shape != cfg.matrix_shape:
+        raise ModelError(f"{path}: metadata 'evseg.matrix' has shape {matrix.shape}, expected {cfg.matrix_shape}")
     if not np.isclose(unit, cfg.flow_unit_px_s, rtol=1e-9):
         raise ModelError(f"{path}: metadata 'evseg.flow_unit_px_s' = {unit} disagrees with the encoding ({cfg.flow_unit_px_s})")
     return cfg, matrix
@@ -111,17 +111,17 @@ class OnnxNormalFlow:
         self._phase_cache: dict = {}
         self.last_timing_s: dict[str, float] = {}
 
-    def _phase(self, sensor_size: tuple[int, int], calibration: "Calibration | None") -> SpatialPhase:
+    def _phase(self, sensor_size: tuple[int, int], calibration: "Calibration | None") -> tuple[SpatialPhase, ...]:
         key = (int(sensor_size[0]), int(sensor_size[1]), id(calibration))
         if key not in self._phase_cache:
             self._phase_cache.clear()  # one sensor / calibration at a time
             # Keep a reference to the calibration so that its id stays unique while cached.
-            self._phase_cache[key] = (spatial_phase_factors(self.cfg, sensor_size, calibration, self.matrix),
+            self._phase_cache[key] = (pyramid_phases(self.cfg, sensor_size, calibration, self.matrix),
                                      calibration)
         return self._phase_cache[key][0]
 
     def encode(self, events: np.ndarray, sensor_size, targets: np.ndarray, calibration=None) -> np.ndarray:
-        """Features float32 ``(T, 2 d + 1)`` of the targets (see :func:`encode_targets`)."""
+        """Features float32 ``(T, levels (2 d + 1))`` of the targets (see :func:`encode_targets`)."""
         import numba
 
         phase = self._phase(sensor_size, calibration)

@@ -1,7 +1,7 @@
 """The normal-flow head (torch) and its checkpoint format.
 
 :class:`FlowHead` maps the VecKM-style features of :func:`~evseg.veckm_flow.encode_targets`
-``(T, 2 d + 1)`` to ``(T, 3)``: normal flow ``(nx, ny)`` in head units (``xy_scale_px`` px per
+``(T, F)`` (``F = levels (2 d + 1)``) to ``(T, 3)``: normal flow ``(nx, ny)`` in head units (``xy_scale_px`` px per
 ``t_scale_us`` us; :func:`~evseg.veckm_flow.head_output_to_flow` converts to px/s) and
 ``log u``, the log of the predicted angular error in radians.
 
@@ -39,7 +39,7 @@ class FlowHead(nn.Module):
     """MLP ``(T, F) -> (T, 3)``: ``[nx, ny]`` in head units and ``log u`` (u: angular error, rad).
 
     Args:
-        in_features: ``F = 2 d + 1`` of the encoding.
+        in_features: ``F = levels (2 d + 1)`` of the encoding.
         hidden: width of the hidden layers.
         layers: number of hidden layers (>= 1), ReLU after each.
 
@@ -118,7 +118,7 @@ def load_head_checkpoint(path: str | Path) -> tuple[FlowHead, EncodingConfig]:
     if head_kw["in_features"] != cfg.n_features:
         raise ModelError(
             f"{path}: field 'head.in_features' = {head_kw['in_features']} does not match the "
-            f"encoding's 2 d + 1 = {cfg.n_features}"
+            f"encoding's levels (2 d + 1) = {cfg.n_features}"
         )
     head = FlowHead(**head_kw)
     sd = doc["state_dict"]

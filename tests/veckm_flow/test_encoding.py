@@ -283,3 +283,76 @@ def test_targets_are_ordered_by_column_block_then_row_stably(width, height):
     np.testing.assert_array_equal(tdt, ev["t"][targets][expect] - 4_000)
     np.testing.assert_array_equal(tpol, (ev["p"][targets][expect] > 0).astype(np.int8))
     np.testing.assert_array_equal(blk_start, np.searchsorted(blk[expect], np.arange(nblk + 1)))
+
+
+# ----------------------------------------------------------------- pyramid levels
+
+
+@pytest.mark.parametrize("size", [(40, 30), (41, 29)])  # even, and odd (partial border cells)
+def test_pyramid_encoding_matches_direct_window_sums_per_level(size, make_slice):
+    cfg = EncodingConfig(d=8, window_px=2, seed=3, polarity=True, pyramid_levels=3)
+    ev = make_slice(2500, size, seed=4)
+    targets = np.arange(0, 2500, 9)
+    fast = encode_targets(ev, targets, size, cfg)
+    assert fast.shape == (len(targets), 3 * 17) and cfg.n_features == 51
+    np.testing.assert_allclose(fast, encode_targets_reference(ev, targets, size, cfg), atol=ATOL)
+
+
+def test_pyramid_level_one_is_the_encoding_of_events_binned_into_2px_cells(make_slice):
+    from evseg.veckm_flow.encoding import level_sensor_size
+
+    cfg = EncodingConfig(d=8, window_px=3, seed=5, polarity=True, pyramid_levels=2)
+    single = EncodingConfig(d=8, window_px=3, seed=5, polarity=True)
+    ev = make_slice(2000, (41, 30), seed=6)
+    targets = np.arange(0, 2000, 5)
+    both = encode_targets(ev, targets, (41, 30), cfg)
+    # Level 0 is exactly the single-scale encoding (same matrix block, same kernel).
+    np.testing.assert_array_equal(encoding_matrix(cfg)[:, :8], encoding_matrix(single))
+    np.testing.assert_array_equal(both[:, :17], encode_targets(ev, targets, (41, 30), single))
+    # Level 1: the same encoding, with level 1's matrix block, of the events at x // 2, y // 2.
+    binned = ev.copy()
+    binned["x"] //= 2
+    binned["y"] //= 2
+    assert level_sensor_size((41, 30), 1) == (21, 15)
+    level1 = encode_targets(binned, targets, (21, 15), single, matrix=encoding_matrix(cfg)[:, 8:])
+    np.testing.assert_array_equal(both[:, 17:], level1)
+    # A window of 7 cells of 2 px sees more events than one of 7 px.
+    assert np.all(both[:, 33] >= both[:, 16]) and np.any(both[:, 33] > both[:, 16])
+
+
+def test_pyramid_matrix_blocks_are_seeded_and_distinct():
+    a = encoding_matrix(EncodingConfig(d=8, seed=0, pyramid_levels=3))
+    assert a.shape == (3, 24) == EncodingConfig(d=8, pyramid_levels=3).matrix_shape
+    np.testing.assert_array_equal(a, encoding_matrix(EncodingConfig(d=8, seed=0, pyramid_levels=3)))
+    assert not np.allclose(a[:, :8], a[:, 8:16]) and not np.allclose(a[:, 8:16], a[:, 16:])
+    assert not np.allclose(a[:, 8:], encoding_matrix(EncodingConfig(d=8, seed=1, pyramid_levels=3))[:, 8:])
+
+
+def test_calibrated_pyramid_encoding_matches_reference(make_slice):
+    K = np.array([[30.0, 0, 20], [0, 30.0, 15], [0, 0, 1]])
+    cal = Calibration(K, np.array([-0.3, 0.1, 0.001, -0.001]), (40, 30))
+    cfg = EncodingConfig(d=8, window_px=2, pyramid_levels=2)
+    ev = make_slice(1500, (40, 30), seed=2)
+    targets = np.arange(0, 1500, 11)
+    fast = encode_targets(ev, targets, (40, 30), cfg, calibration=cal)
+    np.testing.assert_allclose(fast, encode_targets_reference(ev, targets, (40, 30), cfg, calibration=cal), atol=ATOL)
+    assert not np.allclose(fast[:, 17:], encode_targets(ev, targets, (40, 30), cfg)[:, 17:], atol=1e-2)
+
+
+def test_pyramid_config_and_phase_arguments_are_checked(make_slice):
+    from evseg.veckm_flow.encoding import pyramid_phases, spatial_phase_factors
+
+    for bad in (0, 7, 1.5):
+        with pytest.raises(ConfigError, match="pyramid_levels"):
+            EncodingConfig(pyramid_levels=bad)
+    cfg = EncodingConfig(d=8, pyramid_levels=2)
+    assert EncodingConfig.from_dict(cfg.to_dict()) == cfg
+    ev = make_slice(200, (40, 30))
+    with pytest.raises(EventDataError, match="1 level"):
+        encode_targets(ev, np.arange(10), (40, 30), cfg, phase_xy=spatial_phase_factors(cfg, (40, 30)))
+    with pytest.raises(ConfigError, match=r"expected \(3, 16\)"):
+        encode_targets(ev, np.arange(10), (40, 30), cfg, matrix=encoding_matrix(EncodingConfig(d=8)))
+    phases = pyramid_phases(cfg, (40, 30))
+    assert [p.shape for p in phases] == [(30, 40, 8), (15, 20, 8)]
+    np.testing.assert_array_equal(encode_targets(ev, np.arange(10), (40, 30), cfg, phase_xy=phases),
+                                  encode_targets(ev, np.arange(10), (40, 30), cfg))

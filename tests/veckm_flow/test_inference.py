@@ -48,7 +48,7 @@ def test_metadata_rebuilds_encoder(random_onnx):
     est = OnnxNormalFlow(path)
     assert est.cfg == cfg
     assert json.loads(est.metadata["evseg.encoding"]) == cfg.to_dict()
-    assert est.matrix.shape == (cfg.n_coords, cfg.d)
+    assert est.matrix.shape == cfg.matrix_shape == (cfg.n_coords, cfg.d)
 
 
 def test_default_targets_are_all_events_and_deterministic(random_onnx, make_slice):
@@ -93,3 +93,31 @@ def test_thread_count_changes_nothing_but_rounding(random_onnx, make_slice):
     # rounding differs (~1e-6 relative), nothing else.
     np.testing.assert_allclose(one.nx, two.nx, rtol=1e-3, atol=1e-2)
     np.testing.assert_allclose(one.uncertainty, two.uncertainty, rtol=1e-3)
+
+
+def test_pyramid_model_exports_and_runs_like_its_torch_head(tmp_path):
+    import torch
+
+    from evseg.export import export_onnx
+    from evseg.veckm_flow import EncodingConfig, build_head
+
+    cfg = EncodingConfig(d=8, window_px=3, seed=2, polarity=True, pyramid_levels=2)
+    head = build_head(cfg, seed=0, hidden=16)
+    path = export_onnx(head, cfg, tmp_path / "pyramid.onnx")
+    est = OnnxNormalFlow(path, threads=1)
+    assert est.cfg == cfg and est.matrix.shape == (4, 16)
+    assert est.session.get_inputs()[0].shape[1] == 34
+    scene = translating_edges(n_edges=6, seed=1)
+    targets = select_targets(scene.events, scene.sensor_size, cell_px=3)
+    K = np.array([[200.0, 0, 173], [0, 200.0, 130], [0, 0, 1]])
+    cal = Calibration(K, np.array([-0.2, 0.05, 0.0, 0.0]), scene.sensor_size)
+    for calibration in (None, cal):
+        flow = est(scene.events, scene.sensor_size, targets, calibration=calibration)
+        feats = encode_targets(scene.events, targets, scene.sensor_size, cfg, calibration=calibration)
+        with torch.no_grad():
+            out = head(torch.from_numpy(feats)).numpy()
+        np.testing.assert_allclose(est.predict(feats), out, atol=1e-5)
+        if calibration is None:  # (with one, the flow is mapped back to the sensor grid)
+            nx, ny, _ = head_output_to_flow(out, cfg)
+            np.testing.assert_allclose(flow.nx, nx, atol=1e-5 * cfg.flow_unit_px_s)
+            np.testing.assert_allclose(flow.ny, ny, atol=1e-5 * cfg.flow_unit_px_s)
