@@ -107,3 +107,6 @@ def test_shipped_configs_parse(tmp_path):
         if name == "time_scale_30ms.yaml":
             assert printed["model"]["encoding"]["t_scale_us"] == 30000.0
             assert printed["trainer"]["max_steps"] == 16000  # the rest is default.yaml's
+        if name == "pyramid_t20.yaml":
+            assert printed["model"]["encoding"]["pyramid_levels"] == 2
+            assert printed["model"]["encoding"]["t_scale_us"] == 20000.0
