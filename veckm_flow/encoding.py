@@ -40,7 +40,8 @@ in undistorted px/s) is mapped back to the sensor grid by :func:`undistorted_to_
 Features (``encode_targets``): float32 ``(T, 2 d + 1)``: real parts, imaginary parts of ``G_i``
 rescaled to norm ``sqrt(d)`` (as VecKM does), then ``log(1 + n_i)`` with ``n_i`` the number of
 events in the window (the rescaling discards the count, which tells dense texture from a lone
-event).
+event). With ``pyramid_levels`` L > 1 the features of the L levels follow one another
+(``(T, L (2 d + 1))``, see :class:`EncodingConfig`).
 """
 
 from __future__ import annotations
@@ -71,7 +72,8 @@ class EncodingConfig:
     """Constants of the VecKM-style encoding (stored with every exported model).
 
     Attributes:
-        d: number of complex features (the head sees ``2 d + 1`` real inputs).
+        d: number of complex features per pyramid level (the head sees ``2 d + 1`` real inputs
+            per level).
         window_px: half-width ``k`` of the square neighbourhood window, px (window ``2k+1``).
         alpha: standard deviation of the random matrix entries (kernel sharpness: the
             encoding's spatial resolution is about ``xy_scale_px / alpha`` px and its temporal
