@@ -97,7 +97,11 @@ def test_partial_result_replaces_an_older_result_atomically(monkeypatch, tmp_pat
 
 
 CHILD = textwrap.dedent("""
-    import sys, time
+    import signal, sys, time
+    # A shell starts background jobs ('cmd &', as CI runners may) with SIGINT ignored, and
+    # Python then installs no KeyboardInterrupt handler; restore it so that the test sees
+    # what a terminal's Ctrl-C does.
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     import evseg.pipeline as p
     original = p.MotionSegmentationPipeline.process
     def process(self, window, flow=None, context=None):
