@@ -436,7 +436,7 @@ def encode_targets(
     targets = _validate_targets(targets, len(events))
     width, height = int(sensor_size[0]), int(sensor_size[1])
     A = encoding_matrix(cfg) if matrix is None else _check_full_matrix(matrix, cfg)
-    phases = _level_phases(phase_xy, cfg, sensor_size, calibration, A if matrix is not None else None)
+    phases = _level_phases(phase_xy, cfg, sensor_size, calibration, A)
     if len(targets) == 0:
         return np.zeros((0, cfg.n_features), np.float32)
     x, y, t, p = events["x"], events["y"], events["t"], events["p"]  # views, read in place
@@ -454,8 +454,7 @@ def encode_targets(
         # A coarse level is the same encoding of the events binned into 2^level px cells.
         xl, yl = (x, y) if level == 0 else (x >> level, y >> level)
         w, h = level_sensor_size(sensor_size, level)
-        out.append(_encode_level(xl, yl, t, p, t0, int(t1) - int(t0), targets, (w, h), single,
-                                 phase, None if (matrix is None and level == 0) else block))
+        out.append(_encode_level(xl, yl, t, p, t0, int(t1) - int(t0), targets, (w, h), single, phase, block))
     return out[0] if len(out) == 1 else np.concatenate(out, axis=1)
 
 
@@ -478,9 +477,9 @@ def _level_phases(phase_xy, cfg: EncodingConfig, sensor_size, calibration, matri
 
 
 def _encode_level(x, y, t, p, t0, span_us: int, targets: np.ndarray, size: tuple[int, int],
-                  cfg: EncodingConfig, phase: SpatialPhase, matrix: np.ndarray | None) -> np.ndarray:
+                  cfg: EncodingConfig, phase: SpatialPhase, matrix: np.ndarray) -> np.ndarray:
     """Features ``(T, 2 d + 1)`` of one pyramid level: ``x, y`` in the level's cells,
-    ``size`` its grid, ``cfg`` single-level, ``matrix`` its block (None: level 0's default)."""
+    ``size`` its grid, ``cfg`` single-level, ``matrix`` its ``(3 or 4, d)`` block."""
     from evseg.veckm_flow import _kernels
 
     width, height = size
