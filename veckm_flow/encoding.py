@@ -225,7 +225,7 @@ def spatial_phase(
     width, height = int(sensor_size[0]), int(sensor_size[1])
     if calibration is None and matrix is None:
         return _spatial_phase_raw(cfg, width, height)
-    A = encoding_matrix(cfg.level()) if matrix is None else _check_matrix(matrix, cfg)
+    A = encoding_matrix(cfg.level()) if matrix is None else _check_matrix(matrix, cfg.level())
     if calibration is None:
         yu, xu = np.mgrid[0:height, 0:width].astype(np.float64)
     else:
@@ -296,7 +296,7 @@ def spatial_phase_factors(
     (config, sensor size, matrix)."""
     width, height = int(sensor_size[0]), int(sensor_size[1])
     if calibration is None:
-        key = None if matrix is None else _check_matrix(matrix, cfg).tobytes()
+        key = None if matrix is None else _check_matrix(matrix, cfg.level()).tobytes()
         return _separable_phase(cfg, width, height, key)
     return _full_phase(spatial_phase(cfg, sensor_size, calibration, matrix))
 
@@ -329,7 +329,7 @@ def pyramid_phases(
     its pixels, in cells. ``matrix``: the whole ``(3 or 4, levels d)`` matrix (default
     :func:`encoding_matrix`).
     """
-    A = encoding_matrix(cfg) if matrix is None else _check_full_matrix(matrix, cfg)
+    A = encoding_matrix(cfg) if matrix is None else _check_matrix(matrix, cfg)
     if calibration is not None:
         _check_calibration(calibration, sensor_size)
     single = cfg.level()
@@ -354,15 +354,8 @@ def _check_calibration(calibration: "Calibration", sensor_size: tuple[int, int])
 
 
 def _check_matrix(matrix: np.ndarray, cfg: EncodingConfig) -> np.ndarray:
-    """One pyramid level's block of the matrix: ``(3 or 4, d)``."""
-    matrix = np.asarray(matrix, dtype=np.float64)
-    if matrix.shape != (cfg.n_coords, cfg.d):
-        raise ConfigError(f"encoding matrix has shape {matrix.shape}, expected ({cfg.n_coords}, {cfg.d})")
-    return matrix
-
-
-def _check_full_matrix(matrix: np.ndarray, cfg: EncodingConfig) -> np.ndarray:
-    """The whole matrix of an encoding: ``cfg.matrix_shape``."""
+    """The matrix of ``cfg`` as float64, of shape ``cfg.matrix_shape`` (pass ``cfg.level()``
+    for one pyramid level's ``(3 or 4, d)`` block)."""
     matrix = np.asarray(matrix, dtype=np.float64)
     if matrix.shape != cfg.matrix_shape:
         raise ConfigError(f"encoding matrix has shape {matrix.shape}, expected {cfg.matrix_shape}")
@@ -377,9 +370,10 @@ def time_phase_tables(
     Returns complex64 tables ``hi`` ``(span_us >> 10) + 1, d)`` and ``lo`` ``(P, 1024, d)`` with
     ``exp(i a_t dt / t_scale_us) = hi[dt >> 10] * lo[0, dt & 1023]``. With ``cfg.polarity``,
     ``P = 2`` and ``lo[q]`` also carries the polarity phase ``exp(i a_p p)`` with
-    ``p = -1`` for ``q = 0`` and ``+1`` for ``q = 1``; otherwise ``P = 1``.
+    ``p = -1`` for ``q = 0`` and ``+1`` for ``q = 1``; otherwise ``P = 1``. One pyramid level:
+    ``matrix`` is a ``(3 or 4, d)`` block (default: level 0's).
     """
-    A = encoding_matrix(cfg) if matrix is None else _check_matrix(matrix, cfg)
+    A = encoding_matrix(cfg.level()) if matrix is None else _check_matrix(matrix, cfg.level())
     a_t = A[2] / cfg.t_scale_us
     n_hi = (int(span_us) >> _LO_BITS) + 1
     hi = np.exp(1j * np.outer(np.arange(n_hi, dtype=np.float64) * _LO_SIZE, a_t))
@@ -435,7 +429,7 @@ def encode_targets(
 
     targets = _validate_targets(targets, len(events))
     width, height = int(sensor_size[0]), int(sensor_size[1])
-    A = encoding_matrix(cfg) if matrix is None else _check_full_matrix(matrix, cfg)
+    A = encoding_matrix(cfg) if matrix is None else _check_matrix(matrix, cfg)
     phases = _level_phases(phase_xy, cfg, sensor_size, calibration, A)
     if len(targets) == 0:
         return np.zeros((0, cfg.n_features), np.float32)
