@@ -105,6 +105,10 @@ class PipelineConfig:
             for a single window (about half of them on learned-flow validation scenes, against
             ~5 % of the true objects' detections), so 2 trades the first window of every object
             for fewer false ones.
+        fast_edges: with ``flow="learned"``, a second, time-stretched look at the targets of
+            fast-moving regions (:mod:`evseg.veckm_flow.fast_edges`): the head underestimates
+            edges that cross its window in a millisecond or two (a thrown ball). False: the
+            head's first look alone.
         segmentation: a :class:`evseg.segmentation.SegmentationConfig` (None = defaults).
     """
 
@@ -118,6 +122,7 @@ class PipelineConfig:
     overlap: bool = True
     worker: str = "thread"
     min_track_windows: int = 1
+    fast_edges: bool = True
     segmentation: object | None = None
 
     def __post_init__(self) -> None:
@@ -132,6 +137,8 @@ class PipelineConfig:
                 f"pipeline.worker must be one of {', '.join(WORKERS)}, got {self.worker!r}")
         if not isinstance(self.min_track_windows, (int, np.integer)) or self.min_track_windows < 1:
             raise ConfigError(f"pipeline.min_track_windows must be an integer >= 1, got {self.min_track_windows!r}")
+        if not isinstance(self.fast_edges, (bool, np.bool_)):
+            raise ConfigError(f"pipeline.fast_edges must be true or false, got {self.fast_edges!r}")
         ctx = self.flow_context_us
         if not (isinstance(ctx, (int, np.integer)) or (isinstance(ctx, float) and ctx.is_integer())) or ctx < 0:
             raise ConfigError(f"pipeline.flow_context_us must be a non-negative integer (us), got {ctx!r}")
@@ -297,10 +304,12 @@ class MotionSegmentationPipeline:
             est = PlaneFitNormalFlow()
         else:
             from evseg.veckm_flow import OnnxNormalFlow
+            from evseg.veckm_flow.fast_edges import FastEdges
 
             # Overlapped, the flow has its own thread next to the segmentation's: one core each.
             threads = cfg.threads if cfg.threads is not None else (1 if cfg.overlap else None)
-            est = OnnxNormalFlow(model_path=cfg.model_path, threads=threads)
+            est = OnnxNormalFlow(model_path=cfg.model_path, threads=threads,
+                                 fast_edges=FastEdges() if cfg.fast_edges else None)
         self._estimator = est
 
         def flow_fn(events: np.ndarray, sensor_size: tuple[int, int], context: np.ndarray | None):

@@ -38,6 +38,7 @@ class SegmentJob:
     overlap: bool = True
     worker: str = "auto"
     min_track_windows: int = 1
+    fast_edges: bool = True
     masks: bool = False
     video: Path | None = None
     frames: Path | None = None
@@ -80,6 +81,7 @@ def build_pipeline_config(job: SegmentJob):
         overlap=job.overlap,
         worker="process" if job.worker == "auto" else job.worker,  # auto: see run_segment_job
         min_track_windows=job.min_track_windows,
+        fast_edges=job.fast_edges,
         segmentation=seg,
     )
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -31,6 +32,7 @@ from evseg.veckm_flow.encoding import (
     pyramid_phases,
     undistorted_to_sensor_flow,
 )
+from evseg.veckm_flow.fast_edges import FastEdges, combine, gate_weights, local_mean_speed, stretched_start
 from evseg.veckm_flow.result import NormalFlow, head_output_to_flow
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -93,11 +95,15 @@ class OnnxNormalFlow:
         threads: threads of the network (onnxruntime intra-op) and of the encoder (numba),
             None: all cores. On a machine shared with other busy processes, 1 can be faster:
             the encoder's parallel loops wait for their slowest thread.
+        fast_edges: the time-stretched second look at targets in fast-moving regions
+            (:mod:`evseg.veckm_flow.fast_edges`; on by default), None for the head's first
+            look alone.
 
     Call: ``est(events, sensor_size, targets=None, calibration=None) -> NormalFlow``.
     """
 
-    def __init__(self, model_path: str | Path | None = None, threads: int | None = None) -> None:
+    def __init__(self, model_path: str | Path | None = None, threads: int | None = None,
+                 fast_edges: FastEdges | None = FastEdges()) -> None:
         path = Path(model_path) if model_path is not None else DEFAULT_MODEL
         if model_path is None and not path.is_file():
             raise ModelError(f"{path}: no shipped default model in this build; pass a model_path (evseg export)")
@@ -108,6 +114,9 @@ class OnnxNormalFlow:
         self.cfg, self.matrix = _parse_metadata(path, meta)
         self.metadata = dict(meta)
         self._input = self.session.get_inputs()[0].name
+        if fast_edges is not None and not isinstance(fast_edges, FastEdges):
+            raise ModelError(f"fast_edges must be a FastEdges or None, got {type(fast_edges).__name__}")
+        self.fast_edges = fast_edges
         self._phase_cache: dict = {}
         self.last_timing_s: dict[str, float] = {}
 
@@ -120,17 +129,20 @@ class OnnxNormalFlow:
                                      calibration)
         return self._phase_cache[key][0]
 
-    def encode(self, events: np.ndarray, sensor_size, targets: np.ndarray, calibration=None) -> np.ndarray:
-        """Features float32 ``(T, levels (2 d + 1))`` of the targets (see :func:`encode_targets`)."""
+    def encode(self, events: np.ndarray, sensor_size, targets: np.ndarray, calibration=None,
+               cfg: EncodingConfig | None = None) -> np.ndarray:
+        """Features float32 ``(T, levels (2 d + 1))`` of the targets (see :func:`encode_targets`);
+        ``cfg``: another time scale of the model's encoding (the fast-edge look), default its own."""
         import numba
 
+        cfg = self.cfg if cfg is None else cfg
         phase = self._phase(sensor_size, calibration)
         if self.threads is None:
-            return encode_targets(events, targets, sensor_size, self.cfg, calibration, phase, self.matrix)
+            return encode_targets(events, targets, sensor_size, cfg, calibration, phase, self.matrix)
         before = numba.get_num_threads()
         numba.set_num_threads(min(self.threads, numba.config.NUMBA_NUM_THREADS))
         try:
-            return encode_targets(events, targets, sensor_size, self.cfg, calibration, phase, self.matrix)
+            return encode_targets(events, targets, sensor_size, cfg, calibration, phase, self.matrix)
         finally:
             numba.set_num_threads(before)
 
@@ -149,7 +161,8 @@ class OnnxNormalFlow:
     ) -> NormalFlow:
         """Normal flow (px/s of the sensor grid) of ``targets`` (default: every event) of the
         slice ``events``; every event of the slice is a potential neighbour.
-        ``last_timing_s`` then holds the seconds spent in ``encode`` and ``network``."""
+        ``last_timing_s`` then holds the seconds spent in ``encode`` and ``network`` (the
+        fast-edge look's share included) and ``fast_edges`` (its share alone)."""
         validate_events(events, sensor_size, source="normal flow input")
         if targets is None:
             targets = np.arange(len(events), dtype=np.int64)
@@ -159,8 +172,40 @@ class OnnxNormalFlow:
         t1 = time.perf_counter()
         out = self.predict(feats)
         t2 = time.perf_counter()
-        self.last_timing_s = {"encode": t1 - t0, "network": t2 - t1}
         nx, ny, unc = head_output_to_flow(out, self.cfg)
+        timing = {"encode": t1 - t0, "network": t2 - t1, "fast_edges": 0.0}
+        if self.fast_edges is not None and len(targets):
+            nx, ny, unc = self._fast_edges(events, sensor_size, targets, calibration, (nx, ny, unc), timing)
+        self.last_timing_s = timing
         if calibration is not None:
             nx, ny = undistorted_to_sensor_flow(nx, ny, events["x"][targets], events["y"][targets], calibration)
         return NormalFlow(targets, nx, ny, unc)
+
+    def _fast_edges(self, events, sensor_size, targets, calibration, first, timing):
+        """The first look ``(nx, ny, uncertainty)`` with the time-stretched second look mixed in
+        where the gate opens (:mod:`evseg.veckm_flow.fast_edges`); adds its seconds to ``timing``."""
+        fe = self.fast_edges
+        t0 = time.perf_counter()
+        unit = self.cfg.flow_unit_px_s
+        speed = local_mean_speed(events["x"][targets], events["y"][targets], np.hypot(first[0], first[1]) / unit,
+                                 sensor_size, fe.radius_px)
+        gated = np.flatnonzero(speed > fe.speed_from)
+        if len(gated) == 0:
+            timing["fast_edges"] = time.perf_counter() - t0
+            return first
+        cfg = replace(self.cfg, t_scale_us=self.cfg.t_scale_us / fe.stretch)
+        start = min(stretched_start(events["t"], fe.stretch), int(targets[gated].min()))
+        t1 = time.perf_counter()
+        feats = self.encode(events[start:], sensor_size, targets[gated] - start, calibration, cfg)
+        t2 = time.perf_counter()
+        second = head_output_to_flow(self.predict(feats), cfg)  # px/s, like the first look
+        t3 = time.perf_counter()
+        mixed = combine(tuple(a[gated] for a in first), second, gate_weights(speed[gated], fe.speed_from, fe.speed_full))
+        out = tuple(a.copy() for a in first)
+        for a, b in zip(out, mixed):
+            a[gated] = b
+        t4 = time.perf_counter()
+        timing["encode"] += t2 - t1
+        timing["network"] += t3 - t2
+        timing["fast_edges"] = t4 - t0
+        return out

@@ -33,6 +33,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, required=True, help="output .npz (index, nx, ny, uncertainty)")
     p.add_argument("--model", type=Path, default=None, help="ONNX normal-flow model (default: the shipped one)")
     p.add_argument("--baseline", action="store_true", help="use the plane-fit baseline instead of the model")
+    p.add_argument("--no-fast-edges", action="store_true",
+                   help="skip the time-stretched second look at fast-moving regions (README, Normal flow)")
     p.add_argument("--calib", type=Path, default=None, help="calibration YAML (default: the file's own, if any)")
     p.add_argument("--window-ms", type=float, default=10.0, help="slice duration (ms): the targets of one slice")
     p.add_argument("--context-ms", type=float, default=20.0,
@@ -58,8 +60,13 @@ def _estimator(args: argparse.Namespace):
             raise EvsegError("--baseline and --model exclude each other")
         est = PlaneFitNormalFlow()
         return est, {"method": "planefit", "planefit": {k: getattr(est, k) for k in est.__dataclass_fields__}}
-    est = OnnxNormalFlow(args.model, threads=args.threads)
-    return est, {"method": "learned", "model": str(est.model_path), "encoding": est.cfg.to_dict()}
+    from dataclasses import asdict
+
+    from evseg.veckm_flow.fast_edges import FastEdges
+
+    est = OnnxNormalFlow(args.model, threads=args.threads, fast_edges=None if args.no_fast_edges else FastEdges())
+    return est, {"method": "learned", "model": str(est.model_path), "encoding": est.cfg.to_dict(),
+                 "fast_edges": None if est.fast_edges is None else asdict(est.fast_edges)}
 
 
 def run(args: argparse.Namespace) -> int:

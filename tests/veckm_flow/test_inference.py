@@ -27,7 +27,7 @@ def test_onnx_estimator_matches_torch_head_in_px_s(random_onnx):
     path, head, cfg = random_onnx
     scene = translating_edges(n_edges=8, seed=2)
     targets = select_targets(scene.events, scene.sensor_size, cell_px=3)
-    est = OnnxNormalFlow(path, threads=1)
+    est = OnnxNormalFlow(path, threads=1, fast_edges=None)  # the head's own look: parity
     flow = est(scene.events, scene.sensor_size, targets)
     feats = encode_targets(scene.events, targets, scene.sensor_size, cfg)
     with torch.no_grad():
@@ -40,7 +40,8 @@ def test_onnx_estimator_matches_torch_head_in_px_s(random_onnx):
     np.testing.assert_allclose(flow.ny, ny, atol=tol)
     np.testing.assert_allclose(flow.uncertainty, u, rtol=1e-4)
     assert flow.nx.dtype == np.float32 and flow.index.dtype == np.int64
-    assert set(est.last_timing_s) == {"encode", "network"}
+    assert set(est.last_timing_s) == {"encode", "network", "fast_edges"}
+    assert est.last_timing_s["fast_edges"] == 0.0
 
 
 def test_metadata_rebuilds_encoder(random_onnx):
