@@ -105,8 +105,8 @@ class PipelineConfig:
             for a single window (about half of them on learned-flow validation scenes, against
             ~5 % of the true objects' detections), so 2 trades the first window of every object
             for fewer false ones.
-        fast_edges: with ``flow="learned"``, a second, time-stretched look at the targets of
-            fast-moving regions (:mod:`evseg.veckm_flow.fast_edges`): the head underestimates
+        fast_edges: with ``flow="learned"``, a second, time-stretched look at the targets
+            whose flow is fast (:mod:`evseg.veckm_flow.fast_edges`): the head underestimates
             edges that cross its window in a millisecond or two (a thrown ball). False: the
             head's first look alone.
         segmentation: a :class:`evseg.segmentation.SegmentationConfig` (None = defaults).

@@ -1,4 +1,4 @@
-"""Fast edges: a second, time-stretched look at the targets in fast-moving regions.
+"""Fast edges: a second, time-stretched look at the targets whose flow is fast.
 
 The encoder's time phases ``exp(i a_t dt / t_scale_us)`` resolve about ``t_scale_us / alpha``;
 an edge that crosses the 7x7 px window in a millisecond or two leaves almost no timing
@@ -15,20 +15,12 @@ true speed and a median angular error of 8.2 deg instead of 10.1; on slow edges 
 (their few events spread over less time), which is why it is used only where the first look
 already sees fast flow:
 
-1. ``local_mean_speed``: each target's speed is replaced by the mean first-look speed within
-   ``radius_px``. Normal flow magnitudes vary with the edge orientation (``|n| = |v| cos``),
-   so a per-target gate would split one object into switched and unswitched edges (on
-   validation: more false objects next to the true ones); the neighbourhood mean treats an
-   object's edges alike. The neighbourhood maximum did so too and found more simulated balls,
-   but on real recordings, whose flows have more stray fast estimates, it opened the gate for
-   30-80 % of the targets and added false objects (README, *Normal flow*).
-2. ``gate_weights``: 0 below ``speed_from``, 1 from ``speed_full``, linear in between (model
-   units, see :class:`FastEdges`).
-3. ``combine``: where the gate is open, the two looks are averaged with weights
+1. ``gate_weights``: 0 below ``speed_from``, 1 from ``speed_full``, linear in between, on each
+   target's first-look speed (model units, see :class:`FastEdges`).
+2. ``combine``: where the gate is open, the two looks are averaged with weights
    ``1 / uncertainty^2`` (the head's predicted angular error): on a fast ball the stretched look
-   is the more certain one (0.40 against 0.56 rad), on a slow background edge next to it the
-   first look is (0.18 against 0.65 rad), so the halo that the neighbourhood opens around a
-   fast object keeps its first-look flow.
+   is the more certain one (0.40 against 0.56 rad), on the slower background edges the first
+   look is (0.18 against 0.65 rad).
 
 The rule and its constants were chosen on learned-flow validation scenes (seeds 900-919, never
 the held-out seeds): see the README's *Normal flow* section for the figures.
@@ -50,55 +42,21 @@ class FastEdges:
     Attributes:
         stretch: time stretch ``s`` of the second look (> 1): the encoding's ``t_scale_us / s``,
             on the last ``1 / s`` of the slice's time span.
-        speed_from, speed_full: gate on the neighbourhood's mean first-look speed, in the
-            model's flow units (``xy_scale_px`` per ``t_scale_us``: 300 px/s for the shipped
-            model, so 150 and 220 px/s): no second look below ``speed_from``, full weight from
+        speed_from, speed_full: gate on the target's first-look speed, in the model's flow
+            units (``xy_scale_px`` per ``t_scale_us``: 300 px/s for the shipped model, so 150
+            and 220 px/s): no second look below ``speed_from``, full weight from
             ``speed_full``.
-        radius_px: radius (px) of the disc over which the first-look speed is averaged.
     """
 
     stretch: float = 2.0
     speed_from: float = 0.5
     speed_full: float = 11.0 / 15.0
-    radius_px: int = 6
 
     def __post_init__(self) -> None:
         if not np.isfinite(self.stretch) or self.stretch <= 1.0:
             raise ConfigError(f"FastEdges.stretch must be a number > 1, got {self.stretch!r}")
         if not (np.isfinite(self.speed_from) and np.isfinite(self.speed_full) and 0 <= self.speed_from < self.speed_full):
             raise ConfigError(f"FastEdges: need 0 <= speed_from < speed_full, got {self.speed_from!r} and {self.speed_full!r}")
-        if int(self.radius_px) != self.radius_px or self.radius_px < 0:
-            raise ConfigError(f"FastEdges.radius_px must be an integer >= 0, got {self.radius_px!r}")
-        object.__setattr__(self, "radius_px", int(self.radius_px))
-
-
-def local_mean_speed(
-    x: np.ndarray, y: np.ndarray, speed: np.ndarray, sensor_size: tuple[int, int], radius_px: int
-) -> np.ndarray:
-    """Mean ``speed`` of the points within ``radius_px`` (a disc, OpenCV's ellipse structuring
-    element) of each point, the point itself included, (N,) float32; ``x``, ``y`` integer px on
-    a ``(width, height)`` sensor.
-
-    Example:
-        >>> local_mean_speed(np.array([0, 2, 9]), np.array([0, 0, 0]), np.array([1.0, 5.0, 2.0]),
-        ...                  (10, 1), 2).tolist()
-        [3.0, 3.0, 2.0]
-    """
-    import cv2
-
-    speed = np.asarray(speed, dtype=np.float32)
-    if len(speed) == 0 or radius_px == 0:
-        return speed.copy()
-    x = np.asarray(x, dtype=np.int64)
-    y = np.asarray(y, dtype=np.int64)
-    total = np.zeros((int(sensor_size[1]), int(sensor_size[0])), np.float32)
-    count = np.zeros_like(total)
-    np.add.at(total, (y, x), speed)
-    np.add.at(count, (y, x), 1.0)
-    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius_px + 1, 2 * radius_px + 1)).astype(np.float32)
-    total = cv2.filter2D(total, -1, disc, borderType=cv2.BORDER_CONSTANT)
-    count = cv2.filter2D(count, -1, disc, borderType=cv2.BORDER_CONSTANT)
-    return total[y, x] / np.maximum(count[y, x], 1.0)
 
 
 def gate_weights(speed: np.ndarray, speed_from: float, speed_full: float) -> np.ndarray:

@@ -32,7 +32,7 @@ from evseg.veckm_flow.encoding import (
     pyramid_phases,
     undistorted_to_sensor_flow,
 )
-from evseg.veckm_flow.fast_edges import FastEdges, combine, gate_weights, local_mean_speed, stretched_start
+from evseg.veckm_flow.fast_edges import FastEdges, combine, gate_weights, stretched_start
 from evseg.veckm_flow.result import NormalFlow, head_output_to_flow
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -95,7 +95,7 @@ class OnnxNormalFlow:
         threads: threads of the network (onnxruntime intra-op) and of the encoder (numba),
             None: all cores. On a machine shared with other busy processes, 1 can be faster:
             the encoder's parallel loops wait for their slowest thread.
-        fast_edges: the time-stretched second look at targets in fast-moving regions
+        fast_edges: the time-stretched second look at targets whose flow is fast
             (:mod:`evseg.veckm_flow.fast_edges`; on by default), None for the head's first
             look alone.
 
@@ -186,9 +186,7 @@ class OnnxNormalFlow:
         where the gate opens (:mod:`evseg.veckm_flow.fast_edges`); adds its seconds to ``timing``."""
         fe = self.fast_edges
         t0 = time.perf_counter()
-        unit = self.cfg.flow_unit_px_s
-        speed = local_mean_speed(events["x"][targets], events["y"][targets], np.hypot(first[0], first[1]) / unit,
-                                 sensor_size, fe.radius_px)
+        speed = np.hypot(first[0], first[1]) / self.cfg.flow_unit_px_s
         gated = np.flatnonzero(speed > fe.speed_from)
         if len(gated) == 0:
             timing["fast_edges"] = time.perf_counter() - t0

@@ -34,7 +34,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--model", type=Path, default=None, help="ONNX normal-flow model (default: the shipped one)")
     p.add_argument("--baseline", action="store_true", help="use the plane-fit baseline instead of the model")
     p.add_argument("--no-fast-edges", action="store_true",
-                   help="skip the time-stretched second look at fast-moving regions (README, Normal flow)")
+                   help="skip the time-stretched second look at fast flows (README, Normal flow)")
     p.add_argument("--calib", type=Path, default=None, help="calibration YAML (default: the file's own, if any)")
     p.add_argument("--window-ms", type=float, default=10.0, help="slice duration (ms): the targets of one slice")
     p.add_argument("--context-ms", type=float, default=20.0,

@@ -47,7 +47,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="report an object once its track was found in this many windows "
                         "(2: fewer false objects, each object reported one window later)")
     p.add_argument("--no-fast-edges", action="store_true",
-                   help="learned flow: skip the time-stretched second look at fast-moving regions "
+                   help="learned flow: skip the time-stretched second look at fast flows "
                         "(faster, but fast small objects come out too slow; README, Normal flow)")
     p.add_argument("--masks", action="store_true", help="also store dense object masks in the result")
     p.add_argument("--video", type=Path, default=None, help="write an overlay video (.mp4)")

@@ -13,9 +13,12 @@ def test_synthetic_slice_has_exact_size_and_is_valid():
 
 def test_quick_benchmark_rows_name_their_input():
     rows = benchmark(repeats=1, quick=True)
-    assert len(rows) == 3 and all(r.keys() == rows[0].keys() for r in rows)
-    assert [r["events"] for r in rows] == [10_000, 100_000, 100_000]
+    assert len(rows) == 4 and all(r.keys() == rows[0].keys() for r in rows)
+    assert [r["events"] for r in rows] == [10_000, 100_000, 100_000, 100_000]
     assert rows[1]["targets"] == 10_000 and rows[-1]["method"] == "plane-fit baseline"
+    assert rows[2]["method"].endswith(", first look only)") and rows[2]["fast_edges_ms"] == 0
+    # the synthetic edges move at 200-2,000 px/s: the headline slice gets the second look
+    assert rows[1]["fast_edges_ms"] > 0
     assert all(np.isfinite(r["total_ms"]) and r["total_ms"] > 0 for r in rows)
 
 

@@ -3,24 +3,7 @@ import pytest
 
 from evseg.errors import ConfigError
 from evseg.veckm_flow import OnnxNormalFlow, select_targets
-from evseg.veckm_flow.fast_edges import FastEdges, combine, gate_weights, local_mean_speed, stretched_start
-
-
-def test_local_mean_speed_is_the_mean_over_the_disc():
-    import cv2
-
-    rng = np.random.default_rng(0)
-    size = (40, 30)
-    x, y = rng.integers(0, size[0], 300), rng.integers(0, size[1], 300)  # repeated pixels included
-    speed = rng.uniform(0, 5, 300).astype(np.float32)
-    r = 4
-    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)).astype(bool)
-    want = np.array([np.mean([speed[k] for k in range(len(x))
-                              if abs(x[k] - x[i]) <= r and abs(y[k] - y[i]) <= r and disc[y[k] - y[i] + r, x[k] - x[i] + r]])
-                     for i in range(len(x))])
-    # float32 sums of ~10 values of size ~5: a few ulps
-    np.testing.assert_allclose(local_mean_speed(x, y, speed, size, r), want, rtol=1e-5)
-    np.testing.assert_array_equal(local_mean_speed(x, y, speed, size, 0), speed)
+from evseg.veckm_flow.fast_edges import FastEdges, combine, gate_weights, stretched_start
 
 
 def test_gate_and_combine_by_hand():
@@ -45,7 +28,7 @@ def test_stretched_start_keeps_the_last_part_of_the_span():
 
 
 @pytest.mark.parametrize("kwargs", [{"stretch": 1.0}, {"stretch": float("nan")}, {"speed_from": 1.0, "speed_full": 0.5},
-                                    {"speed_from": -0.1}, {"radius_px": -1}, {"radius_px": 2.5}])
+                                    {"speed_from": -0.1}, {"speed_full": float("inf")}])
 def test_bad_settings_are_named(kwargs):
     with pytest.raises(ConfigError, match="FastEdges"):
         FastEdges(**kwargs)
@@ -83,8 +66,8 @@ def test_fast_edges_bring_a_fast_ball_closer_to_its_speed_and_leave_slow_edges_a
     ball, bg = ok & (label >= 1), ok & (label == 0)
     assert ball.sum() >= 40
     # Measured on this slice (the last 10 ms of 30 ms of EED-like validation seed 900):
-    # 0.488 -> 0.660 for the ball's 53 targets, 98 % of them changed, 2 % of the background's. The margins leave room for other CPUs'
-    # float rounding, not for the effect to vanish.
+    # 0.488 -> 0.660 for the ball's 53 targets, 96 % of them changed, 2 % of the background's.
+    # The margins leave room for other CPUs' float rounding, not for the effect to vanish.
     assert np.median(ratio(plain)[ball]) < 0.55
     assert np.median(ratio(fast)[ball]) > 0.6
     changed = (fast.nx != plain.nx) | (fast.ny != plain.ny)
