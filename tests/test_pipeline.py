@@ -202,6 +202,25 @@ def test_learned_pipeline_flow_equals_the_flow_command_with_context(sim, tmp_pat
     assert not np.allclose(results[0][2].flow, results[20_000][2].flow)
 
 
+def test_no_fast_edges_is_the_first_look_in_flow_command_and_pipeline(sim, tmp_path):
+    """`evseg flow --no-fast-edges` and `PipelineConfig(fast_edges=False)` give the same flows, and
+    the flow file records which estimator made them."""
+    import json
+
+    rec, d = sim
+    out = tmp_path / "flow.npz"
+    assert main(["flow", str(d / "sim.npz"), "--out", str(out), "--no-progress", "--no-fast-edges"]) == 0
+    z = np.load(out)
+    assert json.loads(str(z["config"]))["fast_edges"] is None
+    pipe = MotionSegmentationPipeline(PipelineConfig(fast_edges=False), sensor_size=rec.stream.sensor_size)
+    flow = np.concatenate([r.flow for r in pipe.run(rec.stream)])
+    np.testing.assert_allclose(flow, np.stack([z["nx"], z["ny"]], 1), rtol=1e-5, atol=1e-3)
+    out2 = tmp_path / "flow2.npz"
+    assert main(["flow", str(d / "sim.npz"), "--out", str(out2), "--no-progress"]) == 0
+    assert json.loads(str(np.load(out2)["config"]))["fast_edges"] == {"stretch": 2.0, "speed_from": 0.5,
+                                                                       "speed_full": 11.0 / 15.0}
+
+
 @pytest.mark.parametrize("bad", [-1, 2.5, float("nan"), "20"])
 def test_bad_flow_context_is_a_config_error(bad):
     with pytest.raises(ConfigError, match="flow_context_us"):
