@@ -83,3 +83,14 @@ def test_model_option_reaches_the_evaluation(monkeypatch, tmp_path):
     assert main(["eval", "flow", "--quick", "--model", str(DEFAULT_MODEL), "--out", str(tmp_path / "t.md")]) == 0
     assert seen == {"quick": True, "model_path": DEFAULT_MODEL}
     assert "| overall | 1 |" in (tmp_path / "t.md").read_text()
+
+
+def test_flow_baseline_refuses_learned_flow_options(tmp_path, capsys):
+    """`--model` and `--no-fast-edges` only mean something for the learned flow: with
+    `--baseline` they are an error before anything is read or written."""
+    for option in (["--model", "m.onnx"], ["--no-fast-edges"]):
+        out = tmp_path / "f.npz"
+        assert main(["flow", str(tmp_path / "rec.npz"), "--out", str(out), "--baseline", *option]) == 2
+        assert capsys.readouterr().err.strip() == (
+            f"evseg flow: error: --baseline and {option[0]} exclude each other (both are about the learned flow)")
+        assert not out.exists()

@@ -15,7 +15,6 @@ present, otherwise a randomly initialised head of the default size (same cost; t
 
 from __future__ import annotations
 
-import copy
 import tempfile
 import time
 from pathlib import Path
@@ -82,9 +81,10 @@ def benchmark(repeats: int, quick: bool, model_path: str | Path | None = None) -
 
     from evseg.veckm_flow.baseline import PlaneFitNormalFlow
 
+    from evseg.veckm_flow.inference import OnnxNormalFlow
+
     est, label = _estimator(model_path)
-    first_look = copy.copy(est)
-    first_look.fast_edges = None
+    first_look = OnnxNormalFlow(est.model_path, fast_edges=None)
     threads = f"numba {numba.get_num_threads()}, ort default"
     rows = []
     sizes = [10_000, 100_000] if quick else [10_000, 30_000, 100_000, 300_000, 1_000_000]

@@ -199,11 +199,10 @@ class OnnxNormalFlow:
         second = head_output_to_flow(self.predict(feats), cfg)  # px/s, like the first look
         t3 = time.perf_counter()
         mixed = combine(tuple(a[gated] for a in first), second, gate_weights(speed[gated], fe.speed_from, fe.speed_full))
-        out = tuple(a.copy() for a in first)
-        for a, b in zip(out, mixed):
+        for a, b in zip(first, mixed):  # the first look's arrays are this call's own
             a[gated] = b
         t4 = time.perf_counter()
         timing["encode"] += t2 - t1
         timing["network"] += t3 - t2
         timing["fast_edges"] = t4 - t0
-        return out
+        return first

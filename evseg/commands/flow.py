@@ -54,10 +54,11 @@ def _estimator(args: argparse.Namespace):
     from evseg.veckm_flow import OnnxNormalFlow, PlaneFitNormalFlow
 
     if args.baseline:
-        if args.model is not None:
+        if args.model is not None or args.no_fast_edges:
             from evseg.errors import EvsegError
 
-            raise EvsegError("--baseline and --model exclude each other")
+            other = "--model" if args.model is not None else "--no-fast-edges"
+            raise EvsegError(f"--baseline and {other} exclude each other (both are about the learned flow)")
         est = PlaneFitNormalFlow()
         return est, {"method": "planefit", "planefit": {k: getattr(est, k) for k in est.__dataclass_fields__}}
     from dataclasses import asdict
