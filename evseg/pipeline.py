@@ -109,6 +109,12 @@ class PipelineConfig:
             whose flow is fast (:mod:`evseg.veckm_flow.fast_edges`): the head underestimates
             edges that cross its window in a millisecond or two (a thrown ball). False: the
             head's first look alone.
+        slow_edges: with ``flow="learned"``, a second, time-compressed look over twice the
+            time (window plus context) at the targets whose flow is slow
+            (:mod:`evseg.veckm_flow.slow_edges`): more accurate slow flow (README, *Normal
+            flow*), but 1.5-2x the flow's time on slow scenes, and the segmentation presets
+            were tuned without it (on validation it raised the windows with a false object),
+            so it is off by default here while ``evseg flow`` uses it.
         segmentation: a :class:`evseg.segmentation.SegmentationConfig` (None = defaults).
     """
 
@@ -123,6 +129,7 @@ class PipelineConfig:
     worker: str = "thread"
     min_track_windows: int = 1
     fast_edges: bool = True
+    slow_edges: bool = False
     segmentation: object | None = None
 
     def __post_init__(self) -> None:
@@ -139,6 +146,8 @@ class PipelineConfig:
             raise ConfigError(f"pipeline.min_track_windows must be an integer >= 1, got {self.min_track_windows!r}")
         if not isinstance(self.fast_edges, (bool, np.bool_)):
             raise ConfigError(f"pipeline.fast_edges must be true or false, got {self.fast_edges!r}")
+        if not isinstance(self.slow_edges, (bool, np.bool_)):
+            raise ConfigError(f"pipeline.slow_edges must be true or false, got {self.slow_edges!r}")
         ctx = self.flow_context_us
         if not (isinstance(ctx, (int, np.integer)) or (isinstance(ctx, float) and ctx.is_integer())) or ctx < 0:
             raise ConfigError(f"pipeline.flow_context_us must be a non-negative integer (us), got {ctx!r}")
@@ -260,8 +269,9 @@ class MotionSegmentationPipeline:
         self.calibration = calibration
         self._undistortion = UndistortionTable.from_calibration(calibration) if calibration is not None else None
         self._estimator = None
+        self._history_us = 0  # events kept before a window beyond flow_context_us (slow-edge look)
         if flow_fn is not None:
-            self._flow_fn = lambda events, sensor_size, context: flow_fn(events, sensor_size)
+            self._flow_fn = lambda events, sensor_size, context, t0_us: flow_fn(events, sensor_size)
         else:
             self._flow_fn = self._make_flow_fn()
         # A caller's flow_fn may not expect to run on another thread: only built-in estimators overlap.
@@ -296,7 +306,7 @@ class MotionSegmentationPipeline:
         if cfg.flow == "precomputed":
             return None
         from evseg.veckm_flow import select_targets
-        from evseg.veckm_flow.context import flow_with_context
+        from evseg.veckm_flow.context import flow_with_context, history_span_us, split_history
 
         if cfg.flow == "planefit":
             from evseg.veckm_flow import PlaneFitNormalFlow
@@ -305,17 +315,24 @@ class MotionSegmentationPipeline:
         else:
             from evseg.veckm_flow import OnnxNormalFlow
             from evseg.veckm_flow.fast_edges import FastEdges
+            from evseg.veckm_flow.slow_edges import SlowEdges
 
             # Overlapped, the flow has its own thread next to the segmentation's: one core each.
             threads = cfg.threads if cfg.threads is not None else (1 if cfg.overlap else None)
             est = OnnxNormalFlow(model_path=cfg.model_path, threads=threads,
-                                 fast_edges=FastEdges() if cfg.fast_edges else None)
+                                 fast_edges=FastEdges() if cfg.fast_edges else None,
+                                 slow_edges=SlowEdges() if cfg.slow_edges else None)
         self._estimator = est
+        self._history_us = history_span_us(est, int(cfg.window_us) + int(cfg.flow_context_us))
 
-        def flow_fn(events: np.ndarray, sensor_size: tuple[int, int], context: np.ndarray | None):
+        def flow_fn(events: np.ndarray, sensor_size: tuple[int, int], kept: np.ndarray | None, t0_us: int):
+            """``kept``: the events before the window (context, and history when wanted)."""
             targets = select_targets(events, sensor_size, cell_px=cfg.target_cell_px)
+            history = None
+            if self._history_us and kept is not None:
+                history, kept = split_history(kept, t0_us, int(cfg.flow_context_us))
             # Flow is estimated in raw sensor pixels; undistortion happens after (_prepare()).
-            return flow_with_context(est, events, sensor_size, targets, context)
+            return flow_with_context(est, events, sensor_size, targets, kept, history=history)
 
         return flow_fn
 
@@ -328,18 +345,19 @@ class MotionSegmentationPipeline:
         supplies them), neighbours for the normal flow only."""
         timings: dict[str, float] = {}
         if flow is None:
-            flow, timings = self._estimate_flow(window.events, context)
+            flow, timings = self._estimate_flow(window.events, context, window.t0_us)
         else:
             timings["flow"] = 0.0
         return self._segment(window, flow, timings)
 
-    def _estimate_flow(self, events: np.ndarray, context: np.ndarray | None) -> tuple[NormalFlowLike, dict[str, float]]:
+    def _estimate_flow(self, events: np.ndarray, context: np.ndarray | None,
+                       t0_us: int) -> tuple[NormalFlowLike, dict[str, float]]:
         """Normal flow of a window's events with its timings (ms): 'flow' and the estimator's
         parts (e.g. 'flow_encode', 'flow_network'). Safe to run on the overlap thread."""
         if self._flow_fn is None:
             raise EvsegError("pipeline.flow is 'precomputed' but no flow was given for this window")
         t_start = time.perf_counter()
-        flow = self._flow_fn(events, self.sensor_size, context)
+        flow = self._flow_fn(events, self.sensor_size, context, t0_us)
         timings: dict[str, float] = {}
         split = getattr(self._estimator, "last_timing_s", None) or {}
         for part, seconds in split.items():  # e.g. encode / network of the learned flow
@@ -355,7 +373,7 @@ class MotionSegmentationPipeline:
                               sample_counts: tuple[int, ...] = ()) -> tuple:
         """The overlap worker's share of a window: its normal flow, :meth:`_prepare` and round
         0's sampled candidates for each of ``sample_counts``."""
-        flow, timings = self._estimate_flow(window.events, context)
+        flow, timings = self._estimate_flow(window.events, context, window.t0_us)
         prepared, *rest = self._prepare(window, flow, timings)
         if sample_counts:
             from evseg.segmentation.window import with_sampled_candidates
@@ -484,7 +502,7 @@ class MotionSegmentationPipeline:
         chunks = [source.events] if isinstance(source, EventStream) else source
         cfg = self.config
         needs_context = precomputed_flow is None and cfg.flow != "precomputed"
-        history = EventHistory(int(cfg.flow_context_us) if needs_context else 0)
+        history = EventHistory(self._kept_us() if needs_context else 0)
         windows = stream_time_windows(chunks, cfg.window_us, cfg.stride_us)
         if self._overlap and precomputed_flow is None:
             yield from self._run_overlapped(windows, history)
@@ -547,6 +565,11 @@ class MotionSegmentationPipeline:
             if self.config.worker != "process":
                 pool.shutdown(wait=False, cancel_futures=True)
 
+    def _kept_us(self) -> int:
+        """How long (us) the events before a window are kept: the flow's context and, with the
+        slow-edge look, its history."""
+        return int(self.config.flow_context_us) + self._history_us
+
     def _prepared(self, future, count_wait: bool = False) -> tuple:
         """The overlapped share of a window, from its worker; a worker process that died is
         reported as such (and a new one starts with the next run)."""
@@ -604,7 +627,7 @@ def _prepare_in_worker(window: Window, run_id: int, sample_counts: tuple[int, ..
     flow's context) itself, as :meth:`MotionSegmentationPipeline.run` does."""
     global _WORKER_HISTORY
     if _WORKER_HISTORY is None or _WORKER_HISTORY[0] != run_id:
-        _WORKER_HISTORY = (run_id, EventHistory(int(_WORKER_PIPELINE.config.flow_context_us)))
+        _WORKER_HISTORY = (run_id, EventHistory(_WORKER_PIPELINE._kept_us()))
     history = _WORKER_HISTORY[1]
     context = history.before(window)
     history.add(window)

@@ -39,6 +39,7 @@ class SegmentJob:
     worker: str = "auto"
     min_track_windows: int = 1
     fast_edges: bool = True
+    slow_edges: bool = False
     masks: bool = False
     video: Path | None = None
     frames: Path | None = None
@@ -82,6 +83,7 @@ def build_pipeline_config(job: SegmentJob):
         worker="process" if job.worker == "auto" else job.worker,  # auto: see run_segment_job
         min_track_windows=job.min_track_windows,
         fast_edges=job.fast_edges,
+        slow_edges=job.slow_edges,
         segmentation=seg,
     )
 

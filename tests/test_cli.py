@@ -86,9 +86,9 @@ def test_model_option_reaches_the_evaluation(monkeypatch, tmp_path):
 
 
 def test_flow_baseline_refuses_learned_flow_options(tmp_path, capsys):
-    """`--model` and `--no-fast-edges` only mean something for the learned flow: with
+    """`--model`, `--no-fast-edges` and `--no-slow-edges` only mean something for the learned flow: with
     `--baseline` they are an error before anything is read or written."""
-    for option in (["--model", "m.onnx"], ["--no-fast-edges"]):
+    for option in (["--model", "m.onnx"], ["--no-fast-edges"], ["--no-slow-edges"]):
         out = tmp_path / "f.npz"
         assert main(["flow", str(tmp_path / "rec.npz"), "--out", str(out), "--baseline", *option]) == 2
         assert capsys.readouterr().err.strip() == (

@@ -165,6 +165,20 @@ def test_segment_picks_the_worker_by_recording_length(sim, tmp_path):
     np.testing.assert_array_equal(labels["npz"], labels["forced"])
 
 
+def test_segment_slow_edges_in_the_worker_process_equals_the_sequential_pipeline(sim, tmp_path):
+    """`evseg segment --slow-edges --worker process`: the worker keeps the longer history itself
+    and gives the labels of the sequential pipeline with `slow_edges=True`; the result's config
+    records the setting."""
+    rec, d = sim
+    out = tmp_path / "slow.npz"
+    assert main(["segment", str(d / "sim.npz"), "--slow-edges", "--worker", "process", "--out", str(out),
+                 "--no-progress"]) == 0
+    r = load_result(out)
+    assert "slow_edges: true" in r.config
+    pipe = MotionSegmentationPipeline(PipelineConfig(slow_edges=True, overlap=False), sensor_size=rec.stream.sensor_size)
+    np.testing.assert_array_equal(r.label, np.concatenate([w.labels for w in pipe.run(rec.stream)]))
+
+
 def test_calibrated_pipeline_undistorts_alike_in_the_worker_process(short_stream):
     """The worker process gets the calibration: same labels and flows as sequentially."""
     runs = []
@@ -181,15 +195,16 @@ def test_calibrated_pipeline_undistorts_alike_in_the_worker_process(short_stream
 
 
 def test_learned_pipeline_flow_equals_the_flow_command_with_context(sim, tmp_path):
-    """`evseg flow` (10 ms slices, 20 ms context: the defaults) computes exactly the flows the
-    learned pipeline uses, so `evseg flow` + `evseg segment --flow` is the same system; and the
-    context changes the flows of later windows (it is really used)."""
+    """`evseg flow --no-slow-edges` (10 ms slices, 20 ms context: the defaults) computes exactly
+    the flows the learned pipeline uses, so `evseg flow` + `evseg segment --flow` is the same
+    system; and the context changes the flows of later windows (it is really used)."""
     rec, d = sim
     out = tmp_path / "flow.npz"
-    assert main(["flow", str(d / "sim.npz"), "--out", str(out), "--no-progress"]) == 0
+    assert main(["flow", str(d / "sim.npz"), "--out", str(out), "--no-progress", "--no-slow-edges"]) == 0
     z = np.load(out)
     results = {}
     assert PipelineConfig().flow_context_us == 20_000
+    assert PipelineConfig().slow_edges is False
     for context_us in (20_000, 0):
         pipe = MotionSegmentationPipeline(PipelineConfig(flow_context_us=context_us), sensor_size=rec.stream.sensor_size)
         results[context_us] = list(pipe.run(rec.stream))
@@ -202,16 +217,46 @@ def test_learned_pipeline_flow_equals_the_flow_command_with_context(sim, tmp_pat
     assert not np.allclose(results[0][2].flow, results[20_000][2].flow)
 
 
-def test_no_fast_edges_is_the_first_look_in_flow_command_and_pipeline(sim, tmp_path):
-    """`evseg flow --no-fast-edges` and `PipelineConfig(fast_edges=False)` give the same flows, and
-    the flow file records which estimator made them."""
+@pytest.mark.parametrize("overlap", [False, True])
+def test_slow_edges_pipeline_equals_the_flow_command(sim, tmp_path, overlap):
+    """`evseg flow` (slow-edge look on by default) and `PipelineConfig(slow_edges=True)` (sequential
+    or overlapped) give the same flows: both keep 30 ms of history before the 20 ms context.
+    The first windows have no history before their context (same flows as without the look);
+    the last one (30-40 ms) has 10 ms of it, and its flows change."""
     import json
 
     rec, d = sim
     out = tmp_path / "flow.npz"
-    assert main(["flow", str(d / "sim.npz"), "--out", str(out), "--no-progress", "--no-fast-edges"]) == 0
+    assert main(["flow", str(d / "sim.npz"), "--out", str(out), "--no-progress"]) == 0
+    z = np.load(out)
+    info = json.loads(str(z["config"]))
+    assert info["slow_edges"] == {"compress": 2.0, "speed_full": 1.0 / 3.0, "speed_to": 2.0 / 3.0}
+    assert info["history_us"] == 30_000
+    runs = {}
+    for slow in (True, False):
+        pipe = MotionSegmentationPipeline(PipelineConfig(slow_edges=slow, overlap=overlap),
+                                          sensor_size=rec.stream.sensor_size)
+        runs[slow] = list(pipe.run(rec.stream))
+    flow = np.concatenate([r.flow for r in runs[True]])
+    np.testing.assert_allclose(flow, np.stack([z["nx"], z["ny"]], 1), rtol=1e-5, atol=1e-3)
+    for k in range(3):
+        np.testing.assert_array_equal(runs[True][k].flow, runs[False][k].flow)
+    assert runs[True][3].t0_us >= 30_000  # windows start at the first event (5 us)
+    assert not np.allclose(runs[True][3].flow, runs[False][3].flow)
+
+
+def test_no_fast_edges_is_the_first_look_in_flow_command_and_pipeline(sim, tmp_path):
+    """`evseg flow --no-fast-edges --no-slow-edges` and `PipelineConfig(fast_edges=False)` give the
+    same flows, and the flow file records which estimator made them."""
+    import json
+
+    rec, d = sim
+    out = tmp_path / "flow.npz"
+    assert main(["flow", str(d / "sim.npz"), "--out", str(out), "--no-progress", "--no-fast-edges",
+                 "--no-slow-edges"]) == 0
     z = np.load(out)
     assert json.loads(str(z["config"]))["fast_edges"] is None
+    assert json.loads(str(z["config"]))["slow_edges"] is None
     pipe = MotionSegmentationPipeline(PipelineConfig(fast_edges=False), sensor_size=rec.stream.sensor_size)
     flow = np.concatenate([r.flow for r in pipe.run(rec.stream)])
     np.testing.assert_allclose(flow, np.stack([z["nx"], z["ny"]], 1), rtol=1e-5, atol=1e-3)
@@ -219,6 +264,12 @@ def test_no_fast_edges_is_the_first_look_in_flow_command_and_pipeline(sim, tmp_p
     assert main(["flow", str(d / "sim.npz"), "--out", str(out2), "--no-progress"]) == 0
     assert json.loads(str(np.load(out2)["config"]))["fast_edges"] == {"stretch": 2.0, "speed_from": 0.5,
                                                                        "speed_full": 11.0 / 15.0}
+
+
+@pytest.mark.parametrize("bad", ["yes", 1, None])
+def test_bad_slow_edges_setting_is_a_config_error(bad):
+    with pytest.raises(ConfigError, match="pipeline.slow_edges must be true or false"):
+        PipelineConfig(slow_edges=bad)
 
 
 @pytest.mark.parametrize("bad", [-1, 2.5, float("nan"), "20"])
@@ -418,11 +469,11 @@ def test_a_flow_error_surfaces_at_its_window(short_stream, overlap, monkeypatch)
     calls = []
     inner = pipe._flow_fn
 
-    def flaky(events, sensor_size, context):
+    def flaky(events, sensor_size, context, t0_us):
         calls.append(len(calls))
         if len(calls) == 3:
             raise RuntimeError("estimator failed on window 2")
-        return inner(events, sensor_size, context)
+        return inner(events, sensor_size, context, t0_us)
 
     monkeypatch.setattr(pipe, "_flow_fn", flaky)
     done = []

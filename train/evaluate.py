@@ -166,12 +166,27 @@ def context_before(events: np.ndarray, first: int, t0_us: int, context_us: int) 
     return events[int(np.searchsorted(events["t"], t0_us - context_us, side="left")) : first]
 
 
+def _history_before(est: Estimator, events: np.ndarray, t0_us: int, slice_us: int, context_us: int) -> np.ndarray | None:
+    """The events before the context of a slice starting at ``t0_us`` that the estimator's
+    slow-edge look wants (as ``evseg flow`` and the pipeline give them), or None when it wants
+    none."""
+    from evseg.veckm_flow.context import history_span_us
+
+    span = history_span_us(est, slice_us + context_us)
+    if span == 0:
+        return None
+    t_ctx = t0_us - context_us
+    a, b = np.searchsorted(events["t"], [t_ctx - span, t_ctx], side="left")
+    return events[int(a) : int(b)]
+
+
 def _flows(
-    est: Estimator, events: np.ndarray, sensor_size, targets: np.ndarray, context: np.ndarray | None = None
+    est: Estimator, events: np.ndarray, sensor_size, targets: np.ndarray, context: np.ndarray | None = None,
+    history: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     from evseg.veckm_flow.context import flow_with_context
 
-    res = flow_with_context(est, events, sensor_size, targets, context)
+    res = flow_with_context(est, events, sensor_size, targets, context, history=history)
     if not np.array_equal(np.asarray(res.index), targets):
         raise RuntimeError("estimator returned flows for other events than the targets it was given")
     return np.stack([res.nx, res.ny], axis=1).astype(np.float64), np.asarray(res.uncertainty, np.float64)
@@ -202,7 +217,8 @@ def collect_scene(rec, learned: Estimator, baseline: Estimator, cfg: FlowEvalCon
         if len(idx) == 0:
             continue
         context = context_before(ev, int(a), t0, cfg.context_us)
-        p, unc = _flows(learned, e, sensor, idx, context)
+        history = _history_before(learned, ev, t0, cfg.slice_us, cfg.context_us)
+        p, unc = _flows(learned, e, sensor, idx, context, history)
         bflow, _ = _flows(baseline, e, sensor, idx, context)
         out.learned.append(p)
         out.uncertainty.append(unc)
@@ -279,14 +295,15 @@ def recording_slices(events: np.ndarray, slice_us: int, max_slices: int) -> list
 
 def sharpness_of_slice(
     events: np.ndarray, sensor_size, learned: Estimator, baseline: Estimator, cell_px: int = 2,
-    context: np.ndarray | None = None,
+    context: np.ndarray | None = None, history: np.ndarray | None = None,
 ) -> tuple[float, float, int]:
     """Warp sharpness of learned and baseline flow on the targets both estimate; and their count.
-    ``context``: events before the slice, neighbours for both estimators (as in the pipeline)."""
+    ``context``: events before the slice, neighbours for both estimators (as in the pipeline);
+    ``history``: events before the context, for the learned flow's slow-edge look."""
     from evseg.veckm_flow.targets import select_targets
 
     idx = select_targets(events, sensor_size, cell_px=cell_px)
-    p, _ = _flows(learned, events, sensor_size, idx, context)
+    p, _ = _flows(learned, events, sensor_size, idx, context, history)
     b, _ = _flows(baseline, events, sensor_size, idx, context)
     ok = np.all(np.isfinite(p), axis=1) & np.all(np.isfinite(b), axis=1)
     e = events[idx[ok]]
@@ -311,9 +328,11 @@ def evaluate_estimators_real(
         stream = read_events(path)
         ls, bs, n = [], [], 0
         for a, b in recording_slices(stream.events, slice_us, max_slices):
-            context = context_before(stream.events, a, int(stream.events["t"][a]), context_us)
+            t0 = int(stream.events["t"][a])
+            context = context_before(stream.events, a, t0, context_us)
+            history = _history_before(learned, stream.events, t0, slice_us, context_us)
             sl, sb, k = sharpness_of_slice(stream.events[a:b], stream.sensor_size, learned, baseline,
-                                           context=context)
+                                           context=context, history=history)
             if np.isfinite(sl) and np.isfinite(sb):
                 ls.append(sl)
                 bs.append(sb)
@@ -426,8 +445,9 @@ def save_real_pictures(
         a, b = bounds[len(bounds) // 2]
         e = stream.events[a:b]
         context = context_before(stream.events, a, int(e["t"][0]), context_us)
+        history = _history_before(learned, stream.events, int(e["t"][0]), slice_us, context_us)
         idx = select_targets(e, stream.sensor_size, cell_px=1)
-        p, _ = _flows(learned, e, stream.sensor_size, idx, context)
+        p, _ = _flows(learned, e, stream.sensor_size, idx, context, history)
         q, _ = _flows(baseline, e, stream.sensor_size, idx, context)
         scale = 3 if max(stream.sensor_size) <= 128 else 2
         img = flow_picture(e[idx], stream.sensor_size, {"learned": p, "plane fit": q}, scale=scale)

@@ -24,6 +24,7 @@ def flow_with_context(
     targets: np.ndarray,
     context: np.ndarray | None = None,
     calibration=None,
+    history: np.ndarray | None = None,
 ) -> NormalFlow:
     """Normal flow of ``events[targets]`` with ``context`` (earlier events) as neighbours too.
 
@@ -33,6 +34,8 @@ def flow_with_context(
         events: the window, :data:`~evseg.events.EVENT_DTYPE` sorted by t.
         targets: int64 positions in ``events``.
         context: events strictly before ``events[0]`` (sorted), or None / empty.
+        history: events before the context (sorted), passed on as the estimator's ``history``
+            (:class:`~evseg.veckm_flow.OnnxNormalFlow`'s slow-edge look); None: not passed.
 
     Returns:
         :class:`NormalFlow` whose ``index`` are positions in ``events`` (not in the context).
@@ -40,9 +43,12 @@ def flow_with_context(
     targets = np.asarray(targets, dtype=np.int64)
 
     def run(ev: np.ndarray, tg: np.ndarray):
-        # The calibration is passed only when there is one: estimators without calibration
-        # support (est(events, sensor_size, targets)) stay usable.
-        return estimator(ev, sensor_size, tg) if calibration is None else estimator(ev, sensor_size, tg, calibration)
+        # The calibration (and history) are passed only when there is one: estimators without
+        # calibration support (est(events, sensor_size, targets)) stay usable.
+        kw = {} if history is None else {"history": history}
+        if calibration is None:
+            return estimator(ev, sensor_size, tg, **kw)
+        return estimator(ev, sensor_size, tg, calibration, **kw)
 
     if context is None or len(context) == 0:
         return run(events, targets)
@@ -50,3 +56,29 @@ def flow_with_context(
         raise ValueError("context events must come before the window's events")
     flow = run(np.concatenate([context, events]), targets + len(context))
     return flow.shifted(-len(context))
+
+
+def history_span_us(estimator, slice_span_us: int) -> int:
+    """How much time (us) before a slice of ``slice_span_us`` (window plus context) the
+    estimator's slow-edge look wants as ``history`` (0 for estimators without one).
+
+    >>> from evseg.veckm_flow import PlaneFitNormalFlow
+    >>> history_span_us(PlaneFitNormalFlow(), 30_000)
+    0
+    """
+    slow = getattr(estimator, "slow_edges", None)
+    return 0 if slow is None else slow.history_us(slice_span_us)
+
+
+def split_history(events: np.ndarray, t0_us: int, context_us: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(history, context)`` of the events kept before a window starting at ``t0_us``: the
+    context is the last ``context_us`` of them (neighbours of every look), the history what
+    comes before it (the slow-edge look's only).
+
+    >>> from evseg.events import make_events
+    >>> ev = make_events(np.zeros(4), np.zeros(4), np.array([0, 10, 20, 30]), np.ones(4))
+    >>> [part["t"].tolist() for part in split_history(ev, 40, 20)]
+    [[0, 10], [20, 30]]
+    """
+    cut = int(np.searchsorted(events["t"], int(t0_us) - int(context_us), side="left"))
+    return events[:cut], events[cut:]

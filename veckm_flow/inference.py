@@ -34,6 +34,7 @@ from evseg.veckm_flow.encoding import (
 )
 from evseg.veckm_flow.fast_edges import FastEdges, combine, gate_weights, stretched_start
 from evseg.veckm_flow.result import NormalFlow, head_output_to_flow
+from evseg.veckm_flow.slow_edges import SlowEdges, compressed_start, gate
 
 if TYPE_CHECKING:  # pragma: no cover
     from evseg.calibration import Calibration
@@ -98,12 +99,15 @@ class OnnxNormalFlow:
         fast_edges: the time-stretched second look at targets whose flow is fast
             (:mod:`evseg.veckm_flow.fast_edges`; on by default), None for the head's first
             look alone.
+        slow_edges: the time-compressed second look over a longer slice at targets whose flow
+            is slow (:mod:`evseg.veckm_flow.slow_edges`); it runs only when a call passes the
+            events before the slice (``history``), None never.
 
-    Call: ``est(events, sensor_size, targets=None, calibration=None) -> NormalFlow``.
+    Call: ``est(events, sensor_size, targets=None, calibration=None, history=None) -> NormalFlow``.
     """
 
     def __init__(self, model_path: str | Path | None = None, threads: int | None = None,
-                 fast_edges: FastEdges | None = FastEdges()) -> None:
+                 fast_edges: FastEdges | None = FastEdges(), slow_edges: SlowEdges | None = SlowEdges()) -> None:
         path = Path(model_path) if model_path is not None else DEFAULT_MODEL
         if model_path is None and not path.is_file():
             raise ModelError(f"{path}: no shipped default model in this build; pass a model_path (evseg export)")
@@ -117,6 +121,9 @@ class OnnxNormalFlow:
         if fast_edges is not None and not isinstance(fast_edges, FastEdges):
             raise ModelError(f"fast_edges must be a FastEdges or None, got {type(fast_edges).__name__}")
         self.fast_edges = fast_edges
+        if slow_edges is not None and not isinstance(slow_edges, SlowEdges):
+            raise ModelError(f"slow_edges must be a SlowEdges or None, got {type(slow_edges).__name__}")
+        self.slow_edges = slow_edges
         self._phase_cache: dict = {}
         self.last_timing_s: dict[str, float] = {}
 
@@ -158,12 +165,24 @@ class OnnxNormalFlow:
         sensor_size: tuple[int, int],
         targets: np.ndarray | None = None,
         calibration: "Calibration | None" = None,
+        history: np.ndarray | None = None,
     ) -> NormalFlow:
         """Normal flow (px/s of the sensor grid) of ``targets`` (default: every event) of the
         slice ``events``; every event of the slice is a potential neighbour.
+
+        ``history``: events before the slice (sorted, none later than its first event), seen
+        only by the slow-edge look, which spans ``slow_edges.compress`` times the slice's time
+        span (:meth:`SlowEdges.history_us` of history is enough; with less it sees less).
+        Without it there is no slow-edge look.
+
         ``last_timing_s`` then holds the seconds spent in ``encode`` and ``network`` (the
-        fast-edge look's share included) and ``fast_edges`` (its share alone)."""
+        second looks' shares included) and ``fast_edges`` / ``slow_edges`` (their shares alone)."""
         validate_events(events, sensor_size, source="normal flow input")
+        if history is not None:
+            validate_events(history, sensor_size, source="normal flow history")
+            if len(history) and len(events) and int(history["t"][-1]) > int(events["t"][0]):
+                raise ValueError("history events must come before the slice's events "
+                                 f"(last history t {int(history['t'][-1])} us > first slice t {int(events['t'][0])} us)")
         if targets is None:
             targets = np.arange(len(events), dtype=np.int64)
         targets = _validate_targets(targets, len(events))
@@ -173,9 +192,11 @@ class OnnxNormalFlow:
         out = self.predict(feats)
         t2 = time.perf_counter()
         nx, ny, unc = head_output_to_flow(out, self.cfg)
-        timing = {"encode": t1 - t0, "network": t2 - t1, "fast_edges": 0.0}
+        timing = {"encode": t1 - t0, "network": t2 - t1, "fast_edges": 0.0, "slow_edges": 0.0}
         if self.fast_edges is not None and len(targets):
             nx, ny, unc = self._fast_edges(events, sensor_size, targets, calibration, (nx, ny, unc), timing)
+        if self.slow_edges is not None and history is not None and len(history) and len(targets):
+            nx, ny, unc = self._slow_edges(events, history, sensor_size, targets, calibration, (nx, ny, unc), timing)
         self.last_timing_s = timing
         if calibration is not None:
             nx, ny = undistorted_to_sensor_flow(nx, ny, events["x"][targets], events["y"][targets], calibration)
@@ -205,4 +226,32 @@ class OnnxNormalFlow:
         timing["encode"] += t2 - t1
         timing["network"] += t3 - t2
         timing["fast_edges"] = t4 - t0
+        return first
+
+    def _slow_edges(self, events, history, sensor_size, targets, calibration, first, timing):
+        """The look so far ``(nx, ny, uncertainty)`` with the time-compressed look over the
+        longer slice (``history`` + ``events``) mixed in where the gate opens
+        (:mod:`evseg.veckm_flow.slow_edges`); adds its seconds to ``timing``."""
+        se = self.slow_edges
+        t0 = time.perf_counter()
+        w = gate(np.hypot(first[0], first[1]) / self.cfg.flow_unit_px_s, se.speed_full, se.speed_to)
+        gated = np.flatnonzero(w > 0)
+        if len(gated) == 0:
+            timing["slow_edges"] = time.perf_counter() - t0
+            return first
+        cfg = replace(self.cfg, t_scale_us=self.cfg.t_scale_us * se.compress)
+        older = history[compressed_start(history["t"], events["t"], se.compress):]
+        slice_ = np.concatenate([older, events]) if len(older) else events
+        t1 = time.perf_counter()
+        feats = self.encode(slice_, sensor_size, targets[gated] + len(older), calibration, cfg)
+        t2 = time.perf_counter()
+        second = head_output_to_flow(self.predict(feats), cfg)  # px/s, like the first look
+        t3 = time.perf_counter()
+        mixed = combine(tuple(a[gated] for a in first), second, w[gated])
+        for a, b in zip(first, mixed):  # the first look's arrays are this call's own
+            a[gated] = b
+        t4 = time.perf_counter()
+        timing["encode"] += t2 - t1
+        timing["network"] += t3 - t2
+        timing["slow_edges"] = t4 - t0
         return first

@@ -36,15 +36,20 @@ def test_flow_writes_documented_schema_with_recording_indices(recording, random_
     assert json.loads(str(z["config"]))["encoding"] == cfg.to_dict()
     assert json.loads(str(z["config"]))["context_us"] == context_ms * 1000
     # Recompute slice by slice with the API: same targets (as recording positions) and flows;
-    # the events of the context_ms before a slice are neighbours (and only neighbours).
+    # the events of the context_ms before a slice are neighbours (and only neighbours), and the
+    # slow-edge look also sees as long again before them (slice + context) as history.
     est = OnnxNormalFlow(model)
+    history_us = 20_000 + context_ms * 1000
+    assert json.loads(str(z["config"]))["history_us"] == history_us
     idx, nx = [], []
     for sl in time_window_slices(ev["t"], 20_000):
         w = ev[sl]
         t0 = int(ev["t"][0]) + 20_000 * len(idx)
-        context = ev[np.searchsorted(ev["t"], t0 - context_ms * 1000) : sl.start]
+        t_ctx = t0 - context_ms * 1000
+        context = ev[np.searchsorted(ev["t"], t_ctx) : sl.start]
+        history = ev[np.searchsorted(ev["t"], t_ctx - history_us) : np.searchsorted(ev["t"], t_ctx)]
         assert context_ms or len(context) == 0
-        f = flow_with_context(est, w, (80, 60), select_targets(w, (80, 60), cell_px=2), context)
+        f = flow_with_context(est, w, (80, 60), select_targets(w, (80, 60), cell_px=2), context, history=history)
         idx.append(f.index + sl.start)
         nx.append(f.nx)
     np.testing.assert_array_equal(z["index"], np.concatenate(idx))
