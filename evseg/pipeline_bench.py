@@ -48,8 +48,9 @@ def simulated_stream(rate_ev_s: float, duration_us: int, seed: int = 1100):
 
 
 def time_pipeline(path: Path, repeats: int, flow: str = "learned", threads: int | None = None,
-                  overlap: bool = True, worker: str = "process") -> dict:
-    """Per-stage median / p90 ms per window for one recording file."""
+                  overlap: bool = True, worker: str = "process", **pipeline_options) -> dict:
+    """Per-stage median / p90 ms per window for one recording file. ``pipeline_options``:
+    further :class:`~evseg.pipeline.PipelineConfig` fields (e.g. ``slow_edges=False``)."""
     per_stage: dict[str, list[float]] = {s: [] for s in STAGES}
     n_events = n_windows = 0
     pipe = None
@@ -64,7 +65,7 @@ def time_pipeline(path: Path, repeats: int, flow: str = "learned", threads: int 
             # encoder's per-pixel phase table, ~4 s and 236 MB for a 1280x720 sensor; numba
             # loading) is paid in the first repeat only, not in every window of every repeat.
             pipe = MotionSegmentationPipeline(PipelineConfig(flow=flow, threads=threads, overlap=overlap,
-                                                             worker=worker), sensor_size=sensor)
+                                                             worker=worker, **pipeline_options), sensor_size=sensor)
         pipe.reset()
         results = []
         it = pipe.run(chunks)

@@ -34,7 +34,7 @@ from evseg.veckm_flow.encoding import (
 )
 from evseg.veckm_flow.fast_edges import FastEdges, combine, gate_weights, stretched_start
 from evseg.veckm_flow.result import NormalFlow, head_output_to_flow
-from evseg.veckm_flow.slow_edges import SlowEdges, compressed_start, gate
+from evseg.veckm_flow.slow_edges import SlowEdges, combine_directions, compressed_start, gate
 
 if TYPE_CHECKING:  # pragma: no cover
     from evseg.calibration import Calibration
@@ -229,8 +229,8 @@ class OnnxNormalFlow:
         return first
 
     def _slow_edges(self, events, history, sensor_size, targets, calibration, first, timing):
-        """The look so far ``(nx, ny, uncertainty)`` with the time-compressed look over the
-        longer slice (``history`` + ``events``) mixed in where the gate opens
+        """The look so far ``(nx, ny, uncertainty)`` with the direction of the time-compressed
+        look over the longer slice (``history`` + ``events``) mixed in where the gate opens
         (:mod:`evseg.veckm_flow.slow_edges`); adds its seconds to ``timing``."""
         se = self.slow_edges
         t0 = time.perf_counter()
@@ -247,8 +247,9 @@ class OnnxNormalFlow:
         t2 = time.perf_counter()
         second = head_output_to_flow(self.predict(feats), cfg)  # px/s, like the first look
         t3 = time.perf_counter()
-        mixed = combine(tuple(a[gated] for a in first), second, w[gated])
-        for a, b in zip(first, mixed):  # the first look's arrays are this call's own
+        # Direction only: speed and uncertainty stay the first look's (slow_edges docstring).
+        mixed = combine_directions(tuple(a[gated] for a in first), second, w[gated])
+        for a, b in zip(first[:2], mixed):  # the first look's arrays are this call's own
             a[gated] = b
         t4 = time.perf_counter()
         timing["encode"] += t2 - t1

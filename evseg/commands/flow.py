@@ -37,7 +37,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="skip the time-stretched second look at fast flows (README, Normal flow)")
     p.add_argument("--no-slow-edges", action="store_true",
                    help="skip the time-compressed second look at slow flows over a longer slice "
-                        "(README, Normal flow; about halves the time on slow scenes)")
+                        "(README, Normal flow; up to 2.4x less time on slow scenes)")
     p.add_argument("--calib", type=Path, default=None, help="calibration YAML (default: the file's own, if any)")
     p.add_argument("--window-ms", type=float, default=10.0, help="slice duration (ms): the targets of one slice")
     p.add_argument("--context-ms", type=float, default=20.0,

@@ -49,10 +49,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-fast-edges", action="store_true",
                    help="learned flow: skip the time-stretched second look at fast flows "
                         "(faster, but fast small objects come out too slow; README, Normal flow)")
-    p.add_argument("--slow-edges", action="store_true",
-                   help="learned flow: add the time-compressed second look at slow flows over twice "
-                        "the time (more accurate slow flow, 1.5-2x the flow's time on slow scenes; "
-                        "the presets were tuned without it; README, Normal flow)")
+    p.add_argument("--no-slow-edges", action="store_true",
+                   help="learned flow: skip the time-compressed second look at slow flows over twice "
+                        "the time (less flow time on slow scenes, less accurate slow flow; README, Normal flow)")
     p.add_argument("--masks", action="store_true", help="also store dense object masks in the result")
     p.add_argument("--video", type=Path, default=None, help="write an overlay video (.mp4)")
     p.add_argument("--frames", type=Path, default=None, help="write one overlay PNG per window here")
@@ -82,7 +81,7 @@ def run(args: argparse.Namespace) -> int:
         worker=args.worker,
         min_track_windows=args.min_track_windows,
         fast_edges=not args.no_fast_edges,
-        slow_edges=args.slow_edges,
+        slow_edges=not args.no_slow_edges,
         masks=args.masks,
         video=args.video,
         frames=args.frames,

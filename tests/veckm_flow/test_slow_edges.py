@@ -4,12 +4,22 @@ import pytest
 from evseg.errors import ConfigError
 from evseg.veckm_flow import OnnxNormalFlow, select_targets
 from evseg.veckm_flow.context import flow_with_context, history_span_us, split_history
-from evseg.veckm_flow.slow_edges import SlowEdges, compressed_start, gate
+from evseg.veckm_flow.slow_edges import SlowEdges, combine_directions, compressed_start, gate
 
 
 def test_gate_by_hand():
     # full weight up to speed_full, none from speed_to, linear in between
     np.testing.assert_allclose(gate(np.array([0.0, 1 / 3, 0.5, 2 / 3, 3.0]), 1 / 3, 2 / 3), [1, 1, 0.5, 0, 0])
+
+
+def test_combine_directions_by_hand():
+    # first look (3, 0) px/s certain (u 0.1, weight 100), slow look (0, -1) (u 0.2, weight 25):
+    # mean unit vector (100 (1, 0) + 25 (0, -1)) / 125 = (0.8, -0.2), at the first look's speed 3
+    first = (np.array([3.0, 3.0]), np.array([0.0, 0.0]), np.array([0.1, 0.1]))
+    second = (np.array([0.0, 0.0]), np.array([-1.0, -1.0]), np.array([0.2, 0.2]))
+    nx, ny = combine_directions(first, second, np.array([1.0, 0.0]))
+    np.testing.assert_allclose([nx[0], ny[0]], 3 * np.array([0.8, -0.2]) / np.hypot(0.8, 0.2), rtol=1e-6)
+    np.testing.assert_array_equal([nx[1], ny[1]], [3.0, 0.0])  # closed gate: the first look
 
 
 def test_compressed_start_and_history_span():
@@ -76,14 +86,16 @@ def test_slow_edges_sharpen_slow_flow_and_leave_fast_flow_alone():
     def sign(f):
         return np.mean((np.stack([f.nx, f.ny], 1)[gated] * truth[gated]).sum(1) > 0)
 
-    # Measured on this window (6,593 targets under 100 px/s): 15.3 -> 12.1 deg median angular
-    # error, sign-correct 88.9 -> 92.9 %. The margins leave room for other CPUs' float rounding,
+    # Measured on this window (6,593 targets under 100 px/s): 15.3 -> 11.9 deg median angular
+    # error, sign-correct 88.9 -> 93.5 %. The margins leave room for other CPUs' float rounding,
     # not for the effect to vanish.
     assert err(first) > 14.5 and err(slow) < 13.0
-    assert sign(slow) - sign(first) > 0.025
+    assert sign(slow) - sign(first) > 0.03
     closed = speed >= 200
     np.testing.assert_array_equal(slow.nx[closed], first.nx[closed])
-    np.testing.assert_array_equal(slow.uncertainty[closed], first.uncertainty[closed])
+    # only the direction changes: speed and uncertainty stay the first look's
+    np.testing.assert_allclose(np.hypot(slow.nx, slow.ny), speed, rtol=1e-5, atol=1e-4)
+    np.testing.assert_array_equal(slow.uncertainty, first.uncertainty)
 
 
 def test_split_history_cuts_at_the_context():
