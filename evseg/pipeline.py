@@ -110,11 +110,13 @@ class PipelineConfig:
             edges that cross its window in a millisecond or two (a thrown ball). False: the
             head's first look alone.
         slow_edges: with ``flow="learned"``, a second, time-compressed look over twice the
-            time (window plus context; the pipeline keeps that much more of the stream) at the
-            targets whose flow is slow (:mod:`evseg.veckm_flow.slow_edges`): a better
-            direction for slow edges (README, *Normal flow*), at 1.5-2.4x the flow's time on
-            slow scenes (~3 ms more per window at 1 M events/s, where the flow runs beside the
-            segmentation). False: without it.
+            time (window plus context; the pipeline then keeps that much more of the stream)
+            at the targets whose flow is slow (:mod:`evseg.veckm_flow.slow_edges`; ``evseg
+            flow`` uses it by default): a better direction for slow edges, at 1.5-2.4x the
+            flow's time on slow scenes (~3 ms more per window at 1 M events/s, where the flow
+            runs beside the segmentation). Off by default here: on simulated validation scenes
+            it found a few more objects with fewer false ones, but on the real one-motion
+            recordings it put a false object in more windows (README, *Normal flow*).
         segmentation: a :class:`evseg.segmentation.SegmentationConfig` (None = defaults).
     """
 
@@ -129,7 +131,7 @@ class PipelineConfig:
     worker: str = "thread"
     min_track_windows: int = 1
     fast_edges: bool = True
-    slow_edges: bool = True
+    slow_edges: bool = False
     segmentation: object | None = None
 
     def __post_init__(self) -> None:

@@ -39,7 +39,7 @@ class SegmentJob:
     worker: str = "auto"
     min_track_windows: int = 1
     fast_edges: bool = True
-    slow_edges: bool = True
+    slow_edges: bool = False
     masks: bool = False
     video: Path | None = None
     frames: Path | None = None

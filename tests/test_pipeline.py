@@ -166,17 +166,18 @@ def test_segment_picks_the_worker_by_recording_length(sim, tmp_path):
 
 
 def test_segment_slow_edges_in_the_worker_process_equals_the_sequential_pipeline(sim, tmp_path):
-    """`evseg segment --worker process` (slow-edge look on by default): the worker keeps the
-    longer history itself and gives the labels of the sequential pipeline; the result's config
-    records the setting, and `--no-slow-edges` turns it off."""
+    """`evseg segment --slow-edges --worker process`: the worker keeps the longer history itself
+    and gives the labels of the sequential pipeline with `slow_edges=True`; the result's config
+    records the setting (off without the option)."""
     rec, d = sim
     out = tmp_path / "slow.npz"
-    assert main(["segment", str(d / "sim.npz"), "--worker", "process", "--out", str(out), "--no-progress"]) == 0
+    assert main(["segment", str(d / "sim.npz"), "--slow-edges", "--worker", "process", "--out", str(out),
+                 "--no-progress"]) == 0
     r = load_result(out)
     assert "slow_edges: true" in r.config
-    pipe = MotionSegmentationPipeline(PipelineConfig(overlap=False), sensor_size=rec.stream.sensor_size)
+    pipe = MotionSegmentationPipeline(PipelineConfig(slow_edges=True, overlap=False), sensor_size=rec.stream.sensor_size)
     np.testing.assert_array_equal(r.label, np.concatenate([w.labels for w in pipe.run(rec.stream)]))
-    assert main(["segment", str(d / "sim.npz"), "--no-slow-edges", "--out", str(out), "--no-progress"]) == 0
+    assert main(["segment", str(d / "sim.npz"), "--out", str(out), "--no-progress"]) == 0
     assert "slow_edges: false" in load_result(out).config
 
 
@@ -196,17 +197,16 @@ def test_calibrated_pipeline_undistorts_alike_in_the_worker_process(short_stream
 
 
 def test_learned_pipeline_flow_equals_the_flow_command_with_context(sim, tmp_path):
-    """`evseg flow` (10 ms slices, 20 ms context, slow-edge look with 30 ms of history: the
-    defaults) computes exactly the flows the learned pipeline uses, so `evseg flow` + `evseg
-    segment --flow` is the same system; and the context changes the flows of later windows (it
-    is really used)."""
+    """`evseg flow --no-slow-edges` (10 ms slices, 20 ms context: the defaults) computes exactly
+    the flows the learned pipeline uses by default, so `evseg flow` + `evseg segment --flow` is
+    the same system; and the context changes the flows of later windows (it is really used)."""
     rec, d = sim
     out = tmp_path / "flow.npz"
-    assert main(["flow", str(d / "sim.npz"), "--out", str(out), "--no-progress"]) == 0
+    assert main(["flow", str(d / "sim.npz"), "--out", str(out), "--no-progress", "--no-slow-edges"]) == 0
     z = np.load(out)
     results = {}
     assert PipelineConfig().flow_context_us == 20_000
-    assert PipelineConfig().slow_edges is True
+    assert PipelineConfig().slow_edges is False
     for context_us in (20_000, 0):
         pipe = MotionSegmentationPipeline(PipelineConfig(flow_context_us=context_us), sensor_size=rec.stream.sensor_size)
         results[context_us] = list(pipe.run(rec.stream))
@@ -220,40 +220,41 @@ def test_learned_pipeline_flow_equals_the_flow_command_with_context(sim, tmp_pat
 
 
 @pytest.mark.parametrize("overlap", [False, True])
-def test_slow_edges_in_the_pipeline_and_the_flow_command(sim, tmp_path, overlap):
-    """`evseg flow --no-slow-edges` and `PipelineConfig(slow_edges=False)` (sequential or
-    overlapped) give the same flows; the flow file records the settings. With the look (the
-    default) the first windows, which have no history before their context, keep their flows;
-    the last one (30-40 ms) has 10 ms of history, and its flows change."""
+def test_slow_edges_in_the_pipeline_equal_the_flow_command(sim, tmp_path, overlap):
+    """`evseg flow` (slow-edge look on by default) and `PipelineConfig(slow_edges=True)`
+    (sequential or overlapped) give the same flows: both keep 30 ms of history before the 20 ms
+    context; the flow file records the settings. The first windows, which have no history before
+    their context, keep their flows; the last one (30-40 ms) has 10 ms of history, and its flows
+    change."""
     import json
 
     rec, d = sim
     out = tmp_path / "flow.npz"
-    assert main(["flow", str(d / "sim.npz"), "--out", str(out), "--no-progress", "--no-slow-edges"]) == 0
+    assert main(["flow", str(d / "sim.npz"), "--out", str(out), "--no-progress"]) == 0
     z = np.load(out)
     info = json.loads(str(z["config"]))
-    assert info["slow_edges"] is None and info["history_us"] == 0
+    assert info["slow_edges"] == {"compress": 2.0, "speed_full": 1.0 / 3.0, "speed_to": 2.0 / 3.0}
+    assert info["history_us"] == 30_000
     runs = {}
     for slow in (True, False):
         pipe = MotionSegmentationPipeline(PipelineConfig(slow_edges=slow, overlap=overlap),
                                           sensor_size=rec.stream.sensor_size)
         runs[slow] = list(pipe.run(rec.stream))
-    flow = np.concatenate([r.flow for r in runs[False]])
+    flow = np.concatenate([r.flow for r in runs[True]])
     np.testing.assert_allclose(flow, np.stack([z["nx"], z["ny"]], 1), rtol=1e-5, atol=1e-3)
     for k in range(3):
         np.testing.assert_array_equal(runs[True][k].flow, runs[False][k].flow)
     assert runs[True][3].t0_us >= 30_000  # windows start at the first event (5 us)
     assert not np.allclose(runs[True][3].flow, runs[False][3].flow)
     out2 = tmp_path / "flow2.npz"
-    assert main(["flow", str(d / "sim.npz"), "--out", str(out2), "--no-progress"]) == 0
+    assert main(["flow", str(d / "sim.npz"), "--out", str(out2), "--no-progress", "--no-slow-edges"]) == 0
     info = json.loads(str(np.load(out2)["config"]))
-    assert info["slow_edges"] == {"compress": 2.0, "speed_full": 1.0 / 3.0, "speed_to": 2.0 / 3.0}
-    assert info["history_us"] == 30_000
+    assert info["slow_edges"] is None and info["history_us"] == 0
 
 
 def test_no_fast_edges_is_the_first_look_in_flow_command_and_pipeline(sim, tmp_path):
-    """`evseg flow --no-fast-edges --no-slow-edges` and `PipelineConfig(fast_edges=False,
-    slow_edges=False)` give the same flows, and the flow file records which estimator made them."""
+    """`evseg flow --no-fast-edges --no-slow-edges` and `PipelineConfig(fast_edges=False)` give the
+    same flows, and the flow file records which estimator made them."""
     import json
 
     rec, d = sim
@@ -263,8 +264,7 @@ def test_no_fast_edges_is_the_first_look_in_flow_command_and_pipeline(sim, tmp_p
     z = np.load(out)
     assert json.loads(str(z["config"]))["fast_edges"] is None
     assert json.loads(str(z["config"]))["slow_edges"] is None
-    pipe = MotionSegmentationPipeline(PipelineConfig(fast_edges=False, slow_edges=False),
-                                      sensor_size=rec.stream.sensor_size)
+    pipe = MotionSegmentationPipeline(PipelineConfig(fast_edges=False), sensor_size=rec.stream.sensor_size)
     flow = np.concatenate([r.flow for r in pipe.run(rec.stream)])
     np.testing.assert_allclose(flow, np.stack([z["nx"], z["ny"]], 1), rtol=1e-5, atol=1e-3)
     out2 = tmp_path / "flow2.npz"
