@@ -323,7 +323,8 @@ class MotionSegmentationPipeline:
             threads = cfg.threads if cfg.threads is not None else (1 if cfg.overlap else None)
             est = OnnxNormalFlow(model_path=cfg.model_path, threads=threads,
                                  fast_edges=FastEdges() if cfg.fast_edges else None,
-                                 slow_edges=SlowEdges() if cfg.slow_edges else None)
+                                 # the presets' residual scales are tuned to the first look's uncertainty
+                                 slow_edges=SlowEdges(uncertainty="first") if cfg.slow_edges else None)
         self._estimator = est
         self._history_us = history_span_us(est, int(cfg.window_us) + int(cfg.flow_context_us))
 

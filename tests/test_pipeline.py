@@ -222,8 +222,9 @@ def test_learned_pipeline_flow_equals_the_flow_command_with_context(sim, tmp_pat
 @pytest.mark.parametrize("overlap", [False, True])
 def test_slow_edges_in_the_pipeline_equal_the_flow_command(sim, tmp_path, overlap):
     """`evseg flow` (slow-edge look on by default) and `PipelineConfig(slow_edges=True)`
-    (sequential or overlapped) give the same flows: both keep 30 ms of history before the 20 ms
-    context; the flow file records the settings. The first windows, which have no history before
+    (sequential or overlapped) give the same flows (not uncertainties: the pipeline keeps the
+    first look's): both keep 30 ms of history before the 20 ms context; the flow file records
+    the settings. The first windows, which have no history before
     their context, keep their flows; the last one (30-40 ms) has 10 ms of history, and its flows
     change."""
     import json
@@ -233,7 +234,8 @@ def test_slow_edges_in_the_pipeline_equal_the_flow_command(sim, tmp_path, overla
     assert main(["flow", str(d / "sim.npz"), "--out", str(out), "--no-progress"]) == 0
     z = np.load(out)
     info = json.loads(str(z["config"]))
-    assert info["slow_edges"] == {"compress": 2.0, "speed_full": 1.0 / 3.0, "speed_to": 2.0 / 3.0}
+    assert info["slow_edges"] == {"compress": 2.0, "speed_full": 1.0 / 3.0, "speed_to": 2.0 / 3.0,
+                                  "uncertainty": "combined"}
     assert info["history_us"] == 30_000
     runs = {}
     for slow in (True, False):

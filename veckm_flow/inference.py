@@ -247,9 +247,12 @@ class OnnxNormalFlow:
         t2 = time.perf_counter()
         second = head_output_to_flow(self.predict(feats), cfg)  # px/s, like the first look
         t3 = time.perf_counter()
-        # Direction only: speed and uncertainty stay the first look's (slow_edges docstring).
-        mixed = combine_directions(tuple(a[gated] for a in first), second, w[gated])
-        for a, b in zip(first[:2], mixed):  # the first look's arrays are this call's own
+        # Direction only: the speed stays the first look's (slow_edges docstring).
+        looks = tuple(a[gated] for a in first)
+        mixed = combine_directions(looks, second, w[gated])
+        if se.uncertainty == "combined":
+            mixed = (*mixed, combine(looks, second, w[gated])[2])
+        for a, b in zip(first, mixed):  # the first look's arrays are this call's own
             a[gated] = b
         t4 = time.perf_counter()
         timing["encode"] += t2 - t1

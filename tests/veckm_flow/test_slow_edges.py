@@ -34,7 +34,7 @@ def test_compressed_start_and_history_span():
 
 
 @pytest.mark.parametrize("kwargs", [{"compress": 1.0}, {"compress": float("nan")}, {"speed_full": 1.0, "speed_to": 0.5},
-                                    {"speed_full": -0.1}, {"speed_to": float("inf")}])
+                                    {"speed_full": -0.1}, {"speed_to": float("inf")}, {"uncertainty": "mean"}])
 def test_bad_settings_are_named(kwargs):
     with pytest.raises(ConfigError, match="SlowEdges"):
         SlowEdges(**kwargs)
@@ -67,7 +67,7 @@ def test_slow_edges_sharpen_slow_flow_and_leave_fast_flow_alone():
     from evseg.metrics import angular_error_deg
 
     ev, a, b, size, targets, truth = _slow_window()
-    est = OnnxNormalFlow(threads=1)
+    est = OnnxNormalFlow(threads=1, slow_edges=SlowEdges(uncertainty="first"))
     first = flow_with_context(est, ev[b:], size, targets, ev[a:b])  # no history: no slow look
     assert est.last_timing_s["slow_edges"] == 0.0
     plain = flow_with_context(OnnxNormalFlow(threads=1, slow_edges=None), ev[b:], size, targets, ev[a:b])
@@ -96,6 +96,11 @@ def test_slow_edges_sharpen_slow_flow_and_leave_fast_flow_alone():
     # only the direction changes: speed and uncertainty stay the first look's
     np.testing.assert_allclose(np.hypot(slow.nx, slow.ny), speed, rtol=1e-5, atol=1e-4)
     np.testing.assert_array_equal(slow.uncertainty, first.uncertainty)
+    # the default also averages the uncertainty where the gate is open (and only there)
+    combined = flow_with_context(OnnxNormalFlow(threads=1), ev[b:], size, targets, ev[a:b], history=ev[:a])
+    np.testing.assert_array_equal(combined.nx, slow.nx)
+    changed = combined.uncertainty != first.uncertainty
+    assert changed[speed < 100].mean() > 0.9 and not changed[closed].any()
 
 
 def test_split_history_cuts_at_the_context():
