@@ -344,8 +344,10 @@ class MotionSegmentationPipeline:
         self, window: Window, flow: NormalFlowLike | None = None, context: np.ndarray | None = None
     ) -> WindowResult:
         """Segment one window. ``flow`` (indices into ``window.events``) overrides the estimator;
-        ``context``: the events just before the window (``flow_context_us``; :meth:`run`
-        supplies them), neighbours for the normal flow only."""
+        ``context``: the events of the :attr:`kept_us` before the window (:meth:`run` supplies
+        them; an :class:`~evseg.windows.EventHistory` of that span keeps them), neighbours for
+        the normal flow only: its last ``flow_context_us`` for every look, the rest (with
+        ``slow_edges``) for the slow-edge look."""
         timings: dict[str, float] = {}
         if flow is None:
             flow, timings = self._estimate_flow(window.events, context, window.t0_us)
@@ -505,7 +507,7 @@ class MotionSegmentationPipeline:
         chunks = [source.events] if isinstance(source, EventStream) else source
         cfg = self.config
         needs_context = precomputed_flow is None and cfg.flow != "precomputed"
-        history = EventHistory(self._kept_us() if needs_context else 0)
+        history = EventHistory(self.kept_us if needs_context else 0)
         windows = stream_time_windows(chunks, cfg.window_us, cfg.stride_us)
         if self._overlap and precomputed_flow is None:
             yield from self._run_overlapped(windows, history)
@@ -568,9 +570,11 @@ class MotionSegmentationPipeline:
             if self.config.worker != "process":
                 pool.shutdown(wait=False, cancel_futures=True)
 
-    def _kept_us(self) -> int:
-        """How long (us) the events before a window are kept: the flow's context and, with the
-        slow-edge look, its history."""
+    @property
+    def kept_us(self) -> int:
+        """How long (us) before each window the events are needed (``process``'s ``context``):
+        the flow's context and, with the slow-edge look, its history (50 ms with the defaults
+        and ``slow_edges=True``, else 20 ms)."""
         return int(self.config.flow_context_us) + self._history_us
 
     def _prepared(self, future, count_wait: bool = False) -> tuple:
@@ -630,7 +634,7 @@ def _prepare_in_worker(window: Window, run_id: int, sample_counts: tuple[int, ..
     flow's context) itself, as :meth:`MotionSegmentationPipeline.run` does."""
     global _WORKER_HISTORY
     if _WORKER_HISTORY is None or _WORKER_HISTORY[0] != run_id:
-        _WORKER_HISTORY = (run_id, EventHistory(_WORKER_PIPELINE._kept_us()))
+        _WORKER_HISTORY = (run_id, EventHistory(_WORKER_PIPELINE.kept_us))
     history = _WORKER_HISTORY[1]
     context = history.before(window)
     history.add(window)

@@ -254,6 +254,29 @@ def test_slow_edges_in_the_pipeline_equal_the_flow_command(sim, tmp_path, overla
     assert info["slow_edges"] is None and info["history_us"] == 0
 
 
+def test_process_with_kept_us_of_history_equals_run_with_slow_edges(sim):
+    """A live caller feeding `process` windows with an EventHistory of `kept_us` (50 ms with the
+    slow-edge look: 20 ms context + 30 ms history) gets the flows of `run`."""
+    from evseg.windows import EventHistory, stream_time_windows
+
+    rec, _ = sim
+    assert MotionSegmentationPipeline(PipelineConfig(), sensor_size=rec.stream.sensor_size).kept_us == 20_000
+    assert MotionSegmentationPipeline(PipelineConfig(flow="planefit", slow_edges=True),
+                                      sensor_size=rec.stream.sensor_size).kept_us == 20_000
+    cfg = PipelineConfig(slow_edges=True, overlap=False)
+    pipe = MotionSegmentationPipeline(cfg, sensor_size=rec.stream.sensor_size)
+    assert pipe.kept_us == 50_000
+    expected = [r.flow for r in pipe.run(rec.stream)]
+    pipe.reset()
+    history, got = EventHistory(pipe.kept_us), []
+    for window in stream_time_windows([rec.stream.events], cfg.window_us):
+        got.append(pipe.process(window, context=history.before(window)).flow)
+        history.add(window)
+    assert len(got) == len(expected) == 4
+    for a, b in zip(got, expected):
+        np.testing.assert_array_equal(a, b)
+
+
 def test_no_fast_edges_is_the_first_look_in_flow_command_and_pipeline(sim, tmp_path):
     """`evseg flow --no-fast-edges --no-slow-edges` and `PipelineConfig(fast_edges=False)` give the
     same flows, and the flow file records which estimator made them."""
