@@ -62,6 +62,35 @@ def test_model_option_only_where_a_learned_flow_runs(capsys):
     assert err == ["evseg eval: error: --model applies to flow, flow-real, pipeline, not to 'seg'"]
 
 
+def test_slow_edges_option_reaches_the_pipeline_evaluations(monkeypatch, tmp_path, capsys):
+    """`evseg eval pipeline|pipeline-real|static --slow-edges` runs the pipeline with the slow-edge
+    look; other targets refuse the option with one line."""
+    import evseg.pipeline_eval as pipeline_eval
+    import evseg.pipeline_real as pipeline_real
+
+    seen = {}
+
+    def fake(name):
+        def run(quick, **options):
+            seen[name] = options
+            return [{"scene": "all", "detection rate %": 1.0}]
+        return run
+
+    monkeypatch.setattr(pipeline_eval, "evaluate_pipeline_and_oracle", fake("pipeline"))
+    monkeypatch.setattr(pipeline_real, "evaluate_pipeline_real", fake("pipeline-real"))
+    monkeypatch.setattr(pipeline_eval, "evaluate_static_camera", fake("static"))
+    for target in ("pipeline", "pipeline-real", "static"):
+        assert main(["eval", target, "--quick", "--slow-edges", "--out", str(tmp_path / "t.md")]) == 0
+        assert seen[target] == {"slow_edges": True}
+    assert main(["eval", "pipeline", "--quick", "--out", str(tmp_path / "t.md")]) == 0
+    assert seen["pipeline"] == {}
+    capsys.readouterr()
+    assert main(["eval", "flow", "--slow-edges"]) == 2
+    assert capsys.readouterr().err.strip() == (
+        "evseg eval: error: --slow-edges applies to pipeline, pipeline-real, static, not to 'flow' "
+        "(evseg eval flow measures the estimator with the look already)")
+
+
 def test_model_option_names_a_missing_file_before_the_run(tmp_path, capsys):
     missing = tmp_path / "missing.onnx"
     assert main(["bench", "flow", "--model", str(missing)]) == 2

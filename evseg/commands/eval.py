@@ -30,6 +30,9 @@ TARGETS = {
 # Targets whose function takes ``model_path`` (a normal-flow ONNX file; default the shipped one).
 MODEL_TARGETS = ("flow", "flow-real", "pipeline")
 
+# Targets whose function takes ``slow_edges`` (the pipeline's learned flow with the slow-edge look).
+SLOW_EDGES_TARGETS = ("pipeline", "pipeline-real", "static")
+
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("target", choices=sorted(TARGETS), help="what to evaluate")
@@ -37,9 +40,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, default=None, help="write the markdown table here too")
     p.add_argument("--model", type=Path, default=None,
                    help=f"normal-flow ONNX model (evseg export) instead of the shipped one; targets: {', '.join(MODEL_TARGETS)}")
+    p.add_argument("--slow-edges", action="store_true",
+                   help="the pipeline's learned flow with the slow-edge look (PipelineConfig.slow_edges); "
+                        f"targets: {', '.join(SLOW_EDGES_TARGETS)}")
 
 
 def run(args: argparse.Namespace) -> int:
     fn = resolve_target("evaluation", TARGETS, args.target)
-    emit_table(fn(quick=args.quick, **model_options(args, MODEL_TARGETS)), args.out)
+    options = model_options(args, MODEL_TARGETS)
+    if args.slow_edges:
+        if args.target not in SLOW_EDGES_TARGETS:
+            from evseg.errors import EvsegError
+
+            raise EvsegError(f"--slow-edges applies to {', '.join(SLOW_EDGES_TARGETS)}, not to '{args.target}' "
+                             "(evseg eval flow measures the estimator with the look already)")
+        options["slow_edges"] = True
+    emit_table(fn(quick=args.quick, **options), args.out)
     return 0
