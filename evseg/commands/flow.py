@@ -3,8 +3,10 @@
 Reads the recording in time slices (``--window-ms``, constant memory), picks target events in
 each slice (``--targets cell``: the latest event of each ``--cell-px`` cell; ``all``: every
 event), estimates their normal flow with the learned model (default: the shipped ONNX model,
-``--model`` for another) or the plane-fit baseline (``--baseline``), and writes ``--out`` (.npz,
-atomically) with one row per target event:
+``--model`` for another; with the events of ``--context-ms`` before each slice as neighbours,
+and for its slow-edge look as long again as slice plus context before that, so the flows
+differ from the pipeline's unless ``--no-slow-edges``) or the plane-fit baseline
+(``--baseline``), and writes ``--out`` (.npz, atomically) with one row per target event:
 
 - ``index`` int64: position of the event in the input recording (0-based, file order)
 - ``nx``, ``ny`` float32: normal flow in px/s of the sensor's pixel grid (x = column,
@@ -13,7 +15,8 @@ atomically) with one row per target event:
   rejected)
 
 plus ``sensor_size`` (int64 [width, height]), ``window_us`` and ``method`` / ``config`` (JSON
-of the estimator, model file and settings used). ``--video`` renders a normal-flow colour-wheel
+of the estimator, model file and settings used, e.g. ``context_us``, ``history_us``,
+``slow_edges``). ``--video`` renders a normal-flow colour-wheel
 video (one frame per slice, hue = direction, brightness = speed up to ``--max-px-s``).
 """
 
