@@ -40,7 +40,7 @@ def test_bad_settings_are_named(kwargs):
         SlowEdges(**kwargs)
 
 
-def test_estimator_rejects_a_foreign_slow_edges_value_and_late_history():
+def test_estimator_rejects_a_foreign_slow_edges_value_and_bad_history():
     from evseg.errors import ModelError
     from evseg.events import make_events
 
@@ -50,6 +50,13 @@ def test_estimator_rejects_a_foreign_slow_edges_value_and_late_history():
     late = make_events(np.array([1]), np.array([1]), np.array([150]), np.array([1]))
     with pytest.raises(ValueError, match="history events must come before the slice"):
         OnnxNormalFlow()(ev, (8, 8), history=late)
+    from evseg.errors import EventDataError
+
+    unsorted = make_events(np.array([1, 1]), np.array([1, 1]), np.array([50, 10]), np.array([1, 1]))
+    with pytest.raises(EventDataError, match="normal flow history: field 't' is not sorted"):
+        OnnxNormalFlow()(ev, (8, 8), history=unsorted)
+    with pytest.raises(EventDataError, match="normal flow history: expected an array of dtype"):
+        OnnxNormalFlow()(ev, (8, 8), history=np.zeros((3, 4)))
 
 
 def _slow_window():
