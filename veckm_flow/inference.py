@@ -214,18 +214,11 @@ class OnnxNormalFlow:
             return first
         cfg = replace(self.cfg, t_scale_us=self.cfg.t_scale_us / fe.stretch)
         start = min(stretched_start(events["t"], fe.stretch), int(targets[gated].min()))
-        t1 = time.perf_counter()
-        feats = self.encode(events[start:], sensor_size, targets[gated] - start, calibration, cfg)
-        t2 = time.perf_counter()
-        second = head_output_to_flow(self.predict(feats), cfg)  # px/s, like the first look
-        t3 = time.perf_counter()
+        second = self._second_look(events[start:], sensor_size, targets[gated] - start, calibration, cfg, timing)
         mixed = combine(tuple(a[gated] for a in first), second, gate_weights(speed[gated], fe.speed_from, fe.speed_full))
         for a, b in zip(first, mixed):  # the first look's arrays are this call's own
             a[gated] = b
-        t4 = time.perf_counter()
-        timing["encode"] += t2 - t1
-        timing["network"] += t3 - t2
-        timing["fast_edges"] = t4 - t0
+        timing["fast_edges"] = time.perf_counter() - t0
         return first
 
     def _slow_edges(self, events, history, sensor_size, targets, calibration, first, timing):
@@ -242,11 +235,7 @@ class OnnxNormalFlow:
         cfg = replace(self.cfg, t_scale_us=self.cfg.t_scale_us * se.compress)
         older = history[compressed_start(history["t"], events["t"], se.compress):]
         slice_ = np.concatenate([older, events]) if len(older) else events
-        t1 = time.perf_counter()
-        feats = self.encode(slice_, sensor_size, targets[gated] + len(older), calibration, cfg)
-        t2 = time.perf_counter()
-        second = head_output_to_flow(self.predict(feats), cfg)  # px/s, like the first look
-        t3 = time.perf_counter()
+        second = self._second_look(slice_, sensor_size, targets[gated] + len(older), calibration, cfg, timing)
         # Direction only: the speed stays the first look's (slow_edges docstring).
         looks = tuple(a[gated] for a in first)
         mixed = combine_directions(looks, second, w[gated])
@@ -254,8 +243,16 @@ class OnnxNormalFlow:
             mixed = (*mixed, combine(looks, second, w[gated])[2])
         for a, b in zip(first, mixed):  # the first look's arrays are this call's own
             a[gated] = b
-        t4 = time.perf_counter()
-        timing["encode"] += t2 - t1
-        timing["network"] += t3 - t2
-        timing["slow_edges"] = t4 - t0
+        timing["slow_edges"] = time.perf_counter() - t0
         return first
+
+    def _second_look(self, events, sensor_size, targets, calibration, cfg: EncodingConfig, timing):
+        """``(nx, ny, uncertainty)`` (px/s, rad) of ``targets`` with the encoding ``cfg`` (another
+        time scale of the model's); adds its encoding and network seconds to ``timing``."""
+        t0 = time.perf_counter()
+        feats = self.encode(events, sensor_size, targets, calibration, cfg)
+        t1 = time.perf_counter()
+        second = head_output_to_flow(self.predict(feats), cfg)  # px/s, like the first look
+        timing["encode"] += t1 - t0
+        timing["network"] += time.perf_counter() - t1
+        return second
