@@ -13,8 +13,9 @@ the first repeat.
 the window's share of reading): as ``evseg segment`` runs it, the next window's flow and
 preparation run meanwhile in a worker process (``PipelineConfig.overlap``, ``worker``), so
 the stage figures add up to more than it. The 1 M events/s stream is also timed with the
-worker on a thread of the same process, and with ``overlap`` off (one window after the
-other), where ``total`` is also the time one window takes from its events to its labels.
+worker on a thread of the same process, with ``overlap`` off (one window after the other),
+where ``total`` is also the time one window takes from its events to its labels, and with the
+learned flow's slow-edge look (``PipelineConfig.slow_edges``, ``evseg segment --slow-edges``).
 """
 
 from __future__ import annotations
@@ -120,6 +121,9 @@ def benchmark(repeats: int = 3, quick: bool = False) -> list[dict]:
                 rows.append(row)
                 row = {"input": f"simulated 346x260, {rec.stream.rate_ev_s / 1e6:.2f} M ev/s, overlap off"}
                 row.update(time_pipeline(path, repeats, overlap=False))
+                rows.append(row)
+                row = {"input": f"simulated 346x260, {rec.stream.rate_ev_s / 1e6:.2f} M ev/s, --slow-edges"}
+                row.update(time_pipeline(path, repeats, slow_edges=True))
                 rows.append(row)
     if not quick:
         rows += _real_recordings(repeats)
