@@ -1,6 +1,8 @@
 import subprocess
 import sys
 
+import pytest
+
 from evseg.cli import main
 
 
@@ -91,6 +93,35 @@ def test_slow_edges_option_reaches_the_pipeline_evaluations(monkeypatch, tmp_pat
         "(evseg eval flow measures the estimator with the look already)")
 
 
+def test_mirrors_option_reaches_the_flow_evaluations(monkeypatch, tmp_path, capsys):
+    """`evseg eval flow|flow-real --mirrors N` evaluates the learned flow with N mirror looks;
+    other targets refuse the option with one line, and counts other than 1, 2, 4, 8 are refused."""
+    import evseg.train.evaluate as evaluate
+
+    seen = {}
+
+    def fake(name):
+        def run(quick, **options):
+            seen[name] = options
+            return [{"preset": "overall", "ae_learned": 1.0}]
+        return run
+
+    monkeypatch.setattr(evaluate, "evaluate_flow", fake("flow"))
+    monkeypatch.setattr(evaluate, "evaluate_flow_real", fake("flow-real"))
+    for target in ("flow", "flow-real"):
+        assert main(["eval", target, "--quick", "--mirrors", "4", "--out", str(tmp_path / "t.md")]) == 0
+        assert seen[target] == {"mirrors": 4}
+    assert main(["eval", "flow", "--quick", "--out", str(tmp_path / "t.md")]) == 0
+    assert seen["flow"] == {}
+    capsys.readouterr()
+    assert main(["eval", "pipeline", "--mirrors", "2"]) == 2
+    assert capsys.readouterr().err.strip() == (
+        "evseg eval: error: --mirrors applies to flow, flow-real, not to 'pipeline' (the pipeline's flow has one look)")
+    with pytest.raises(SystemExit):
+        main(["eval", "flow", "--mirrors", "3"])
+    assert "invalid choice: 3" in capsys.readouterr().err
+
+
 def test_model_option_names_a_missing_file_before_the_run(tmp_path, capsys):
     missing = tmp_path / "missing.onnx"
     assert main(["bench", "flow", "--model", str(missing)]) == 2
@@ -115,9 +146,9 @@ def test_model_option_reaches_the_evaluation(monkeypatch, tmp_path):
 
 
 def test_flow_baseline_refuses_learned_flow_options(tmp_path, capsys):
-    """`--model`, `--no-fast-edges` and `--no-slow-edges` only mean something for the learned flow: with
+    """`--model`, `--no-fast-edges`, `--no-slow-edges` and `--mirrors` only mean something for the learned flow: with
     `--baseline` they are an error before anything is read or written."""
-    for option in (["--model", "m.onnx"], ["--no-fast-edges"], ["--no-slow-edges"]):
+    for option in (["--model", "m.onnx"], ["--no-fast-edges"], ["--no-slow-edges"], ["--mirrors", "8"]):
         out = tmp_path / "f.npz"
         assert main(["flow", str(tmp_path / "rec.npz"), "--out", str(out), "--baseline", *option]) == 2
         assert capsys.readouterr().err.strip() == (

@@ -245,16 +245,17 @@ def evaluate_estimators(learned: Estimator, baseline: Estimator, cfg: FlowEvalCo
     return rows
 
 
-def _estimators(model_path: str | Path | None):
+def _estimators(model_path: str | Path | None, mirrors: int = 1):
     from evseg.veckm_flow.baseline import PlaneFitNormalFlow
     from evseg.veckm_flow.inference import OnnxNormalFlow
 
-    return OnnxNormalFlow(model_path), PlaneFitNormalFlow()
+    return OnnxNormalFlow(model_path, mirrors=mirrors), PlaneFitNormalFlow()
 
 
-def evaluate_flow(quick: bool = False, model_path: str | Path | None = None) -> list[dict]:
-    """``evseg eval flow``: learned (shipped model by default) vs plane fit on held-out scenes."""
-    learned, baseline = _estimators(model_path)
+def evaluate_flow(quick: bool = False, model_path: str | Path | None = None, mirrors: int = 1) -> list[dict]:
+    """``evseg eval flow``: learned (shipped model by default; ``mirrors``: its mirror looks,
+    ``evseg flow --mirrors``) vs plane fit on held-out scenes."""
+    learned, baseline = _estimators(model_path, mirrors)
     return evaluate_estimators(learned, baseline, QUICK if quick else FlowEvalConfig())
 
 
@@ -348,14 +349,15 @@ def evaluate_estimators_real(
     return rows
 
 
-def evaluate_flow_real(quick: bool = False, model_path: str | Path | None = None) -> list[dict]:
-    """``evseg eval flow-real``: label-free warp sharpness on the shared real recordings."""
+def evaluate_flow_real(quick: bool = False, model_path: str | Path | None = None, mirrors: int = 1) -> list[dict]:
+    """``evseg eval flow-real``: label-free warp sharpness on the shared real recordings
+    (``mirrors``: the learned flow's mirror looks)."""
     from evseg.errors import EvsegError
 
     root = shared_data_dir()
     if not root.is_dir():
         raise EvsegError(f"real recordings not found at {root} (set EVSEG_SHARED_DATA)")
-    learned, baseline = _estimators(model_path)
+    learned, baseline = _estimators(model_path, mirrors)
     return evaluate_estimators_real(learned, baseline, root, max_slices=5 if quick else 20)
 
 

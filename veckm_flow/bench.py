@@ -12,7 +12,8 @@ with it are the worst case, and the headline slice is also timed without it (the
 look alone, the network's own throughput). The slow-edge look (:mod:`evseg.veckm_flow.slow_edges`)
 needs the events before a slice and slow edges: two more rows time it on a slice of slow edges
 (20-80 px/s, 30 ms: the pipeline's window plus context) with the 30 ms before it as history,
-with and without the look. The learned model is the shipped one when
+with and without the look, and one more the same slice with 8 mirror looks (``evseg flow
+--mirrors 8``, :mod:`evseg.veckm_flow.mirrors`). The learned model is the shipped one when
 present, otherwise a randomly initialised head of the default size (same cost; the rows say so).
 """
 
@@ -117,6 +118,7 @@ def benchmark(repeats: int, quick: bool, model_path: str | Path | None = None) -
 
     est, label = _estimator(model_path)
     first_look = OnnxNormalFlow(est.model_path, fast_edges=None)
+    mirrored = OnnxNormalFlow(est.model_path, mirrors=8)
     threads = f"numba {numba.get_num_threads()}, ort default"
     rows = []
     sizes = [10_000, 100_000] if quick else [10_000, 30_000, 100_000, 300_000, 1_000_000]
@@ -124,7 +126,8 @@ def benchmark(repeats: int, quick: bool, model_path: str | Path | None = None) -
     runs = [(n, est, "", False, False) for n in sizes]
     runs.insert(sizes.index(100_000) + 1, (100_000, first_look, ", first look only", False, False))
     runs += [(100_000, est, ", slow edges, no history: no slow look", True, False),
-             (100_000, est, ", slow edges + 30 ms history: slow look", True, True)]
+             (100_000, est, ", slow edges + 30 ms history: slow look", True, True),
+             (100_000, mirrored, ", slow edges + 30 ms history, 8 mirror looks", True, True)]
     for n, e, variant, slow_edges, with_history in runs:
         history = None
         if slow_edges:
@@ -136,7 +139,7 @@ def benchmark(repeats: int, quick: bool, model_path: str | Path | None = None) -
         enc, net, fast, slow, tot, best = _time_learned(e, ev, targets, repeats, history)
         rows.append({
             "method": "learned (" + label + variant + ")", "events": n, "targets": len(targets),
-            "history_events": 0 if history is None else len(history),
+            "history_events": 0 if history is None else len(history), "mirrors": e.mirrors,
             "encode_ms": enc * 1e3, "network_ms": net * 1e3, "fast_edges_ms": fast * 1e3,
             "slow_edges_ms": slow * 1e3, "total_ms": tot * 1e3,
             "flows_per_s": len(targets) / tot, "ns_per_event": tot / n * 1e9,
@@ -155,6 +158,7 @@ def benchmark(repeats: int, quick: bool, model_path: str | Path | None = None) -
     tot, best = float(np.median(ts)), float(np.min(ts))
     rows.append({
         "method": "plane-fit baseline", "events": 100_000, "targets": len(targets), "history_events": 0,
+        "mirrors": 1,
         "encode_ms": float("nan"), "network_ms": float("nan"), "fast_edges_ms": float("nan"),
         "slow_edges_ms": float("nan"), "total_ms": tot * 1e3, "flows_per_s": len(targets) / tot,
         "ns_per_event": tot / 100_000 * 1e9, "best_total_ms": best * 1e3,

@@ -33,6 +33,7 @@ from evseg.veckm_flow.encoding import (
     undistorted_to_sensor_flow,
 )
 from evseg.veckm_flow.fast_edges import FastEdges, combine, gate_weights, stretched_start
+from evseg.veckm_flow.mirrors import combine_looks, mirror_looks, mirrored_encoding_matrix, unmirror_flow
 from evseg.veckm_flow.result import NormalFlow, head_output_to_flow
 from evseg.veckm_flow.slow_edges import SlowEdges, combine_directions, compressed_start, gate
 
@@ -102,12 +103,16 @@ class OnnxNormalFlow:
         slow_edges: the time-compressed second look over a longer slice at targets whose flow
             is slow (:mod:`evseg.veckm_flow.slow_edges`); it runs only when a call passes the
             events before the slice (``history``), None never.
+        mirrors: how many mirror images of the slice the network looks at, 1, 2, 4 or 8
+            (:mod:`evseg.veckm_flow.mirrors`): their flows are averaged; each costs a full
+            flow computation. 1 (default): the slice as it is.
 
     Call: ``est(events, sensor_size, targets=None, calibration=None, history=None) -> NormalFlow``.
     """
 
     def __init__(self, model_path: str | Path | None = None, threads: int | None = None,
-                 fast_edges: FastEdges | None = FastEdges(), slow_edges: SlowEdges | None = SlowEdges()) -> None:
+                 fast_edges: FastEdges | None = FastEdges(), slow_edges: SlowEdges | None = SlowEdges(),
+                 mirrors: int = 1) -> None:
         path = Path(model_path) if model_path is not None else DEFAULT_MODEL
         if model_path is None and not path.is_file():
             raise ModelError(f"{path}: no shipped default model in this build; pass a model_path (evseg export)")
@@ -124,32 +129,38 @@ class OnnxNormalFlow:
         if slow_edges is not None and not isinstance(slow_edges, SlowEdges):
             raise ModelError(f"slow_edges must be a SlowEdges or None, got {type(slow_edges).__name__}")
         self.slow_edges = slow_edges
+        self.looks = mirror_looks(mirrors)
+        self.mirrors = int(mirrors)
         self._phase_cache: dict = {}
         self.last_timing_s: dict[str, float] = {}
 
-    def _phase(self, sensor_size: tuple[int, int], calibration: "Calibration | None") -> tuple[SpatialPhase, ...]:
-        key = (int(sensor_size[0]), int(sensor_size[1]), id(calibration))
+    def _phase(self, sensor_size: tuple[int, int], calibration: "Calibration | None",
+               matrix: np.ndarray) -> tuple[SpatialPhase, ...]:
+        where = (int(sensor_size[0]), int(sensor_size[1]), id(calibration))
+        key = (*where, matrix.tobytes())
         if key not in self._phase_cache:
-            self._phase_cache.clear()  # one sensor / calibration at a time
+            if any(k[:3] != where for k in self._phase_cache):
+                self._phase_cache.clear()  # one sensor / calibration at a time (a table per mirror look)
             # Keep a reference to the calibration so that its id stays unique while cached.
-            self._phase_cache[key] = (pyramid_phases(self.cfg, sensor_size, calibration, self.matrix),
-                                     calibration)
+            self._phase_cache[key] = (pyramid_phases(self.cfg, sensor_size, calibration, matrix), calibration)
         return self._phase_cache[key][0]
 
     def encode(self, events: np.ndarray, sensor_size, targets: np.ndarray, calibration=None,
-               cfg: EncodingConfig | None = None) -> np.ndarray:
+               cfg: EncodingConfig | None = None, matrix: np.ndarray | None = None) -> np.ndarray:
         """Features float32 ``(T, levels (2 d + 1))`` of the targets (see :func:`encode_targets`);
-        ``cfg``: another time scale of the model's encoding (the fast-edge look), default its own."""
+        ``cfg``: another time scale of the model's encoding (the second looks), default its own;
+        ``matrix``: another random matrix (a mirror look's), default the model's."""
         import numba
 
         cfg = self.cfg if cfg is None else cfg
-        phase = self._phase(sensor_size, calibration)
+        matrix = self.matrix if matrix is None else matrix
+        phase = self._phase(sensor_size, calibration, matrix)
         if self.threads is None:
-            return encode_targets(events, targets, sensor_size, cfg, calibration, phase, self.matrix)
+            return encode_targets(events, targets, sensor_size, cfg, calibration, phase, matrix)
         before = numba.get_num_threads()
         numba.set_num_threads(min(self.threads, numba.config.NUMBA_NUM_THREADS))
         try:
-            return encode_targets(events, targets, sensor_size, cfg, calibration, phase, self.matrix)
+            return encode_targets(events, targets, sensor_size, cfg, calibration, phase, matrix)
         finally:
             numba.set_num_threads(before)
 
@@ -176,7 +187,8 @@ class OnnxNormalFlow:
         Without it there is no slow-edge look.
 
         ``last_timing_s`` then holds the seconds spent in ``encode`` and ``network`` (the
-        second looks' shares included) and ``fast_edges`` / ``slow_edges`` (their shares alone)."""
+        second looks' shares included) and ``fast_edges`` / ``slow_edges`` (their shares alone),
+        summed over the mirror looks."""
         validate_events(events, sensor_size, source="normal flow input")
         if history is not None:
             validate_events(history, sensor_size, source="normal flow history")
@@ -186,23 +198,36 @@ class OnnxNormalFlow:
         if targets is None:
             targets = np.arange(len(events), dtype=np.int64)
         targets = _validate_targets(targets, len(events))
-        t0 = time.perf_counter()
-        feats = self.encode(events, sensor_size, targets, calibration)
-        t1 = time.perf_counter()
-        out = self.predict(feats)
-        t2 = time.perf_counter()
-        nx, ny, unc = head_output_to_flow(out, self.cfg)
-        timing = {"encode": t1 - t0, "network": t2 - t1, "fast_edges": 0.0, "slow_edges": 0.0}
-        if self.fast_edges is not None and len(targets):
-            nx, ny, unc = self._fast_edges(events, sensor_size, targets, calibration, (nx, ny, unc), timing)
-        if self.slow_edges is not None and history is not None and len(history) and len(targets):
-            nx, ny, unc = self._slow_edges(events, history, sensor_size, targets, calibration, (nx, ny, unc), timing)
+        timing = {"encode": 0.0, "network": 0.0, "fast_edges": 0.0, "slow_edges": 0.0}
+        looks = []
+        for k in self.looks:
+            nx, ny, unc = self._look(events, sensor_size, targets, calibration, history,
+                                     mirrored_encoding_matrix(self.matrix, k) if k else self.matrix, timing)
+            looks.append((*unmirror_flow(nx, ny, k), unc) if k else (nx, ny, unc))
+        nx, ny, unc = looks[0] if len(looks) == 1 else combine_looks(looks)
         self.last_timing_s = timing
         if calibration is not None:
             nx, ny = undistorted_to_sensor_flow(nx, ny, events["x"][targets], events["y"][targets], calibration)
         return NormalFlow(targets, nx, ny, unc)
 
-    def _fast_edges(self, events, sensor_size, targets, calibration, first, timing):
+    def _look(self, events, sensor_size, targets, calibration, history, matrix, timing):
+        """``(nx, ny, uncertainty)`` (px/s, rad; undistorted px with a calibration) of one look:
+        the first look with the encoding ``matrix`` and the second looks where their gates open;
+        adds its seconds to ``timing``."""
+        t0 = time.perf_counter()
+        feats = self.encode(events, sensor_size, targets, calibration, matrix=matrix)
+        t1 = time.perf_counter()
+        out = self.predict(feats)
+        timing["encode"] += t1 - t0
+        timing["network"] += time.perf_counter() - t1
+        first = head_output_to_flow(out, self.cfg)
+        if self.fast_edges is not None and len(targets):
+            first = self._fast_edges(events, sensor_size, targets, calibration, first, matrix, timing)
+        if self.slow_edges is not None and history is not None and len(history) and len(targets):
+            first = self._slow_edges(events, history, sensor_size, targets, calibration, first, matrix, timing)
+        return first
+
+    def _fast_edges(self, events, sensor_size, targets, calibration, first, matrix, timing):
         """The first look ``(nx, ny, uncertainty)`` with the time-stretched second look mixed in
         where the gate opens (:mod:`evseg.veckm_flow.fast_edges`); adds its seconds to ``timing``."""
         fe = self.fast_edges
@@ -210,18 +235,18 @@ class OnnxNormalFlow:
         speed = np.hypot(first[0], first[1]) / self.cfg.flow_unit_px_s
         gated = np.flatnonzero(speed > fe.speed_from)
         if len(gated) == 0:
-            timing["fast_edges"] = time.perf_counter() - t0
+            timing["fast_edges"] += time.perf_counter() - t0
             return first
         cfg = replace(self.cfg, t_scale_us=self.cfg.t_scale_us / fe.stretch)
         start = min(stretched_start(events["t"], fe.stretch), int(targets[gated].min()))
-        second = self._second_look(events[start:], sensor_size, targets[gated] - start, calibration, cfg, timing)
+        second = self._second_look(events[start:], sensor_size, targets[gated] - start, calibration, cfg, matrix, timing)
         mixed = combine(tuple(a[gated] for a in first), second, gate_weights(speed[gated], fe.speed_from, fe.speed_full))
         for a, b in zip(first, mixed):  # the first look's arrays are this call's own
             a[gated] = b
-        timing["fast_edges"] = time.perf_counter() - t0
+        timing["fast_edges"] += time.perf_counter() - t0
         return first
 
-    def _slow_edges(self, events, history, sensor_size, targets, calibration, first, timing):
+    def _slow_edges(self, events, history, sensor_size, targets, calibration, first, matrix, timing):
         """The look so far ``(nx, ny, uncertainty)`` with the direction of the time-compressed
         look over the longer slice (``history`` + ``events``) mixed in where the gate opens
         (:mod:`evseg.veckm_flow.slow_edges`); adds its seconds to ``timing``."""
@@ -230,12 +255,12 @@ class OnnxNormalFlow:
         w = gate(np.hypot(first[0], first[1]) / self.cfg.flow_unit_px_s, se.speed_full, se.speed_to)
         gated = np.flatnonzero(w > 0)
         if len(gated) == 0:
-            timing["slow_edges"] = time.perf_counter() - t0
+            timing["slow_edges"] += time.perf_counter() - t0
             return first
         cfg = replace(self.cfg, t_scale_us=self.cfg.t_scale_us * se.compress)
         older = history[compressed_start(history["t"], events["t"], se.compress):]
         slice_ = np.concatenate([older, events]) if len(older) else events
-        second = self._second_look(slice_, sensor_size, targets[gated] + len(older), calibration, cfg, timing)
+        second = self._second_look(slice_, sensor_size, targets[gated] + len(older), calibration, cfg, matrix, timing)
         # Direction only: the speed stays the first look's (slow_edges docstring).
         looks = tuple(a[gated] for a in first)
         mixed = combine_directions(looks, second, w[gated])
@@ -243,14 +268,14 @@ class OnnxNormalFlow:
             mixed = (*mixed, combine(looks, second, w[gated])[2])
         for a, b in zip(first, mixed):  # the first look's arrays are this call's own
             a[gated] = b
-        timing["slow_edges"] = time.perf_counter() - t0
+        timing["slow_edges"] += time.perf_counter() - t0
         return first
 
-    def _second_look(self, events, sensor_size, targets, calibration, cfg: EncodingConfig, timing):
+    def _second_look(self, events, sensor_size, targets, calibration, cfg: EncodingConfig, matrix, timing):
         """``(nx, ny, uncertainty)`` (px/s, rad) of ``targets`` with the encoding ``cfg`` (another
-        time scale of the model's); adds its encoding and network seconds to ``timing``."""
+        time scale of the model's) and ``matrix``; adds its encoding and network seconds to ``timing``."""
         t0 = time.perf_counter()
-        feats = self.encode(events, sensor_size, targets, calibration, cfg)
+        feats = self.encode(events, sensor_size, targets, calibration, cfg, matrix)
         t1 = time.perf_counter()
         second = head_output_to_flow(self.predict(feats), cfg)  # px/s, like the first look
         timing["encode"] += t1 - t0

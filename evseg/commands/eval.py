@@ -30,6 +30,9 @@ TARGETS = {
 # Targets whose function takes ``model_path`` (a normal-flow ONNX file; default the shipped one).
 MODEL_TARGETS = ("flow", "flow-real", "pipeline")
 
+# Targets whose function takes ``mirrors`` (the learned flow's mirror looks, ``evseg flow --mirrors``).
+MIRRORS_TARGETS = ("flow", "flow-real")
+
 # Targets whose function takes ``slow_edges`` (the pipeline's learned flow with the slow-edge look).
 SLOW_EDGES_TARGETS = ("pipeline", "pipeline-real", "static")
 
@@ -43,6 +46,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--slow-edges", action="store_true",
                    help="the pipeline's learned flow with the slow-edge look (PipelineConfig.slow_edges); "
                         f"targets: {', '.join(SLOW_EDGES_TARGETS)}")
+    p.add_argument("--mirrors", type=int, choices=[1, 2, 4, 8], default=1,
+                   help="the learned flow averaged over this many mirror images of each slice (evseg flow "
+                        f"--mirrors); targets: {', '.join(MIRRORS_TARGETS)}")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -55,5 +61,12 @@ def run(args: argparse.Namespace) -> int:
             raise EvsegError(f"--slow-edges applies to {', '.join(SLOW_EDGES_TARGETS)}, not to '{args.target}' "
                              "(evseg eval flow measures the estimator with the look already)")
         options["slow_edges"] = True
+    if args.mirrors != 1:
+        if args.target not in MIRRORS_TARGETS:
+            from evseg.errors import EvsegError
+
+            raise EvsegError(f"--mirrors applies to {', '.join(MIRRORS_TARGETS)}, not to '{args.target}' "
+                             "(the pipeline's flow has one look)")
+        options["mirrors"] = args.mirrors
     emit_table(fn(quick=args.quick, **options), args.out)
     return 0

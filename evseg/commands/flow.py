@@ -16,7 +16,8 @@ differ from the pipeline's unless ``--no-slow-edges``) or the plane-fit baseline
 
 plus ``sensor_size`` (int64 [width, height]), ``window_us`` and ``method`` / ``config`` (JSON
 of the estimator, model file and settings used, e.g. ``context_us``, ``history_us``,
-``slow_edges``). ``--video`` renders a normal-flow colour-wheel
+``slow_edges``, ``mirrors``). ``--mirrors N`` averages the model's flow over N mirror images of
+each slice (:mod:`evseg.veckm_flow.mirrors`). ``--video`` renders a normal-flow colour-wheel
 video (one frame per slice, hue = direction, brightness = speed up to ``--max-px-s``).
 """
 
@@ -41,6 +42,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-slow-edges", action="store_true",
                    help="skip the time-compressed second look at slow flows over a longer slice "
                         "(README, Normal flow; up to 2.4x less time on slow scenes)")
+    p.add_argument("--mirrors", type=int, choices=[1, 2, 4, 8], default=1,
+                   help="average the model's flow over this many mirror images of each slice (README, "
+                        "Normal flow; 8: 10.0 instead of 11.5 deg held out, at 8x the time)")
     p.add_argument("--calib", type=Path, default=None, help="calibration YAML (default: the file's own, if any)")
     p.add_argument("--window-ms", type=float, default=10.0, help="slice duration (ms): the targets of one slice")
     p.add_argument("--context-ms", type=float, default=20.0,
@@ -60,11 +64,12 @@ def _estimator(args: argparse.Namespace):
     from evseg.veckm_flow import OnnxNormalFlow, PlaneFitNormalFlow
 
     if args.baseline:
-        if args.model is not None or args.no_fast_edges or args.no_slow_edges:
+        if args.model is not None or args.no_fast_edges or args.no_slow_edges or args.mirrors != 1:
             from evseg.errors import EvsegError
 
             other = ("--model" if args.model is not None
-                     else "--no-fast-edges" if args.no_fast_edges else "--no-slow-edges")
+                     else "--no-fast-edges" if args.no_fast_edges
+                     else "--no-slow-edges" if args.no_slow_edges else "--mirrors")
             raise EvsegError(f"--baseline and {other} exclude each other (both are about the learned flow)")
         est = PlaneFitNormalFlow()
         return est, {"method": "planefit", "planefit": {k: getattr(est, k) for k in est.__dataclass_fields__}}
@@ -74,8 +79,9 @@ def _estimator(args: argparse.Namespace):
     from evseg.veckm_flow.slow_edges import SlowEdges
 
     est = OnnxNormalFlow(args.model, threads=args.threads, fast_edges=None if args.no_fast_edges else FastEdges(),
-                         slow_edges=None if args.no_slow_edges else SlowEdges())
+                         slow_edges=None if args.no_slow_edges else SlowEdges(), mirrors=args.mirrors)
     return est, {"method": "learned", "model": str(est.model_path), "encoding": est.cfg.to_dict(),
+                 "mirrors": est.mirrors,
                  "fast_edges": None if est.fast_edges is None else asdict(est.fast_edges),
                  "slow_edges": None if est.slow_edges is None else asdict(est.slow_edges)}
 

@@ -23,8 +23,8 @@ def test_slow_slice_is_a_window_with_its_history():
 
 def test_quick_benchmark_rows_name_their_input():
     rows = benchmark(repeats=1, quick=True)
-    assert len(rows) == 6 and all(r.keys() == rows[0].keys() for r in rows)
-    assert [r["events"] for r in rows] == [10_000, 100_000, 100_000, 100_000, 100_000, 100_000]
+    assert len(rows) == 7 and all(r.keys() == rows[0].keys() for r in rows)
+    assert [r["events"] for r in rows] == [10_000] + [100_000] * 6
     assert rows[1]["targets"] == 10_000 and rows[-1]["method"] == "plane-fit baseline"
     assert rows[2]["method"].endswith(", first look only)") and rows[2]["fast_edges_ms"] == 0
     # the synthetic edges move at 200-2,000 px/s: the headline slice gets the second look
@@ -33,6 +33,10 @@ def test_quick_benchmark_rows_name_their_input():
     assert rows[3]["history_events"] == 0 and rows[3]["slow_edges_ms"] == 0
     assert rows[4]["history_events"] > 50_000 and rows[4]["slow_edges_ms"] > 0
     assert rows[3]["targets"] == rows[4]["targets"] == 10_000
+    # the same slice and history through 8 mirror looks (evseg flow --mirrors 8)
+    assert [r["mirrors"] for r in rows] == [1, 1, 1, 1, 1, 8, 1]
+    assert rows[5]["method"].endswith("8 mirror looks)") and rows[5]["history_events"] == rows[4]["history_events"]
+    assert rows[5]["slow_edges_ms"] > 0
     assert all(np.isfinite(r["total_ms"]) and r["total_ms"] > 0 for r in rows)
 
 

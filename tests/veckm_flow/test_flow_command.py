@@ -57,6 +57,25 @@ def test_flow_writes_documented_schema_with_recording_indices(recording, random_
     assert "normal flows" in capsys.readouterr().out
 
 
+def test_flow_mirrors_option_averages_the_mirror_looks(recording, random_onnx, tmp_path):
+    """`evseg flow --mirrors 4` writes what `OnnxNormalFlow(mirrors=4)` computes, and records it."""
+    path, ev = recording
+    model, _, _ = random_onnx
+    out = tmp_path / "flow.npz"
+    args = ["--window-ms", "20", "--context-ms", "0", "--no-slow-edges", "--no-progress"]
+    assert main(["flow", str(path), "--out", str(out), "--model", str(model), "--mirrors", "4", *args]) == 0
+    z = np.load(out)
+    assert json.loads(str(z["config"]))["mirrors"] == 4
+    est = OnnxNormalFlow(model, slow_edges=None, mirrors=4)
+    w = ev[time_window_slices(ev["t"], 20_000)[0]]
+    f = est(w, (80, 60), select_targets(w, (80, 60), cell_px=2))
+    np.testing.assert_allclose(z["nx"][: len(f)], f.nx, rtol=1e-6, atol=1e-6)
+    one = tmp_path / "one.npz"
+    assert main(["flow", str(path), "--out", str(one), "--model", str(model), *args]) == 0
+    assert json.loads(str(np.load(one)["config"]))["mirrors"] == 1
+    assert not np.allclose(np.load(one)["nx"], z["nx"])
+
+
 def test_flow_baseline_all_targets_and_video(recording, tmp_path):
     path, ev = recording
     out, video = tmp_path / "b.npz", tmp_path / "b.mp4"
