@@ -117,6 +117,10 @@ class PipelineConfig:
             runs beside the segmentation). Off by default here: on simulated validation scenes
             it found a few more objects with fewer false ones, but on the real one-motion
             recordings it put a false object in more windows (README, *Normal flow*).
+        mirrors: with ``flow="learned"``, the flow averaged over this many mirror images of
+            each window (1, 2, 4 or 8; :mod:`evseg.veckm_flow.mirrors`): a more accurate flow at
+            ``mirrors`` times the flow's time, for offline runs (README, *Pipeline*). 1: the
+            window as it is.
         segmentation: a :class:`evseg.segmentation.SegmentationConfig` (None = defaults).
     """
 
@@ -132,6 +136,7 @@ class PipelineConfig:
     min_track_windows: int = 1
     fast_edges: bool = True
     slow_edges: bool = False
+    mirrors: int = 1
     segmentation: object | None = None
 
     def __post_init__(self) -> None:
@@ -150,6 +155,11 @@ class PipelineConfig:
             raise ConfigError(f"pipeline.fast_edges must be true or false, got {self.fast_edges!r}")
         if not isinstance(self.slow_edges, (bool, np.bool_)):
             raise ConfigError(f"pipeline.slow_edges must be true or false, got {self.slow_edges!r}")
+        from evseg.veckm_flow.mirrors import MIRROR_GROUPS
+
+        if isinstance(self.mirrors, (bool, np.bool_)) or not isinstance(self.mirrors, (int, np.integer)) \
+                or int(self.mirrors) not in MIRROR_GROUPS:
+            raise ConfigError(f"pipeline.mirrors must be one of {sorted(MIRROR_GROUPS)}, got {self.mirrors!r}")
         ctx = self.flow_context_us
         if not (isinstance(ctx, (int, np.integer)) or (isinstance(ctx, float) and ctx.is_integer())) or ctx < 0:
             raise ConfigError(f"pipeline.flow_context_us must be a non-negative integer (us), got {ctx!r}")
@@ -324,7 +334,8 @@ class MotionSegmentationPipeline:
             est = OnnxNormalFlow(model_path=cfg.model_path, threads=threads,
                                  fast_edges=FastEdges() if cfg.fast_edges else None,
                                  # the presets' residual scales are tuned to the first look's uncertainty
-                                 slow_edges=SlowEdges(uncertainty="first") if cfg.slow_edges else None)
+                                 slow_edges=SlowEdges(uncertainty="first") if cfg.slow_edges else None,
+                                 mirrors=int(cfg.mirrors))
         self._estimator = est
         self._history_us = history_span_us(est, int(cfg.window_us) + int(cfg.flow_context_us))
 

@@ -40,6 +40,7 @@ class SegmentJob:
     min_track_windows: int = 1
     fast_edges: bool = True
     slow_edges: bool = False
+    mirrors: int = 1
     masks: bool = False
     video: Path | None = None
     frames: Path | None = None
@@ -84,6 +85,7 @@ def build_pipeline_config(job: SegmentJob):
         min_track_windows=job.min_track_windows,
         fast_edges=job.fast_edges,
         slow_edges=job.slow_edges,
+        mirrors=job.mirrors,
         segmentation=seg,
     )
 

@@ -94,8 +94,11 @@ def test_slow_edges_option_reaches_the_pipeline_evaluations(monkeypatch, tmp_pat
 
 
 def test_mirrors_option_reaches_the_flow_evaluations(monkeypatch, tmp_path, capsys):
-    """`evseg eval flow|flow-real --mirrors N` evaluates the learned flow with N mirror looks;
-    other targets refuse the option with one line, and counts other than 1, 2, 4, 8 are refused."""
+    """`evseg eval flow|flow-real|pipeline|pipeline-real|static --mirrors N` evaluates with the
+    learned flow's N mirror looks; `seg` (ground-truth flow) refuses the option with one line,
+    and counts other than 1, 2, 4, 8 are refused."""
+    import evseg.pipeline_eval as pipeline_eval
+    import evseg.pipeline_real as pipeline_real
     import evseg.train.evaluate as evaluate
 
     seen = {}
@@ -108,15 +111,19 @@ def test_mirrors_option_reaches_the_flow_evaluations(monkeypatch, tmp_path, caps
 
     monkeypatch.setattr(evaluate, "evaluate_flow", fake("flow"))
     monkeypatch.setattr(evaluate, "evaluate_flow_real", fake("flow-real"))
-    for target in ("flow", "flow-real"):
+    monkeypatch.setattr(pipeline_eval, "evaluate_pipeline_and_oracle", fake("pipeline"))
+    monkeypatch.setattr(pipeline_real, "evaluate_pipeline_real", fake("pipeline-real"))
+    monkeypatch.setattr(pipeline_eval, "evaluate_static_camera", fake("static"))
+    for target in ("flow", "flow-real", "pipeline", "pipeline-real", "static"):
         assert main(["eval", target, "--quick", "--mirrors", "4", "--out", str(tmp_path / "t.md")]) == 0
         assert seen[target] == {"mirrors": 4}
     assert main(["eval", "flow", "--quick", "--out", str(tmp_path / "t.md")]) == 0
     assert seen["flow"] == {}
     capsys.readouterr()
-    assert main(["eval", "pipeline", "--mirrors", "2"]) == 2
+    assert main(["eval", "seg", "--mirrors", "2"]) == 2
     assert capsys.readouterr().err.strip() == (
-        "evseg eval: error: --mirrors applies to flow, flow-real, not to 'pipeline' (the pipeline's flow has one look)")
+        "evseg eval: error: --mirrors applies to flow, flow-real, pipeline, pipeline-real, static, not to 'seg' "
+        "(it evaluates ground-truth flow)")
     with pytest.raises(SystemExit):
         main(["eval", "flow", "--mirrors", "3"])
     assert "invalid choice: 3" in capsys.readouterr().err

@@ -298,6 +298,33 @@ def test_no_fast_edges_is_the_first_look_in_flow_command_and_pipeline(sim, tmp_p
                                                                        "speed_full": 11.0 / 15.0}
 
 
+def test_mirrors_give_the_flow_command_s_flows_in_the_pipeline_and_segment(sim, tmp_path):
+    """`PipelineConfig(mirrors=4)` computes the flows of `evseg flow --mirrors 4 --no-slow-edges`,
+    and `evseg segment --mirrors 4` runs it and records the setting."""
+    import json
+
+    rec, d = sim
+    out = tmp_path / "flow.npz"
+    assert main(["flow", str(d / "sim.npz"), "--out", str(out), "--no-progress", "--no-slow-edges",
+                 "--mirrors", "4"]) == 0
+    z = np.load(out)
+    pipe = MotionSegmentationPipeline(PipelineConfig(mirrors=4), sensor_size=rec.stream.sensor_size)
+    flow = np.concatenate([r.flow for r in pipe.run(rec.stream)])
+    np.testing.assert_allclose(flow, np.stack([z["nx"], z["ny"]], 1), rtol=1e-5, atol=1e-3)
+    one = MotionSegmentationPipeline(PipelineConfig(), sensor_size=rec.stream.sensor_size)
+    assert not np.allclose(flow, np.concatenate([r.flow for r in one.run(rec.stream)]))
+    res = tmp_path / "r.npz"
+    assert main(["segment", str(d / "sim.npz"), "--out", str(res), "--mirrors", "4", "--no-progress",
+                 "--worker", "thread"]) == 0
+    assert "mirrors: 4" in str(np.load(res)["config"])
+
+
+@pytest.mark.parametrize("bad", [3, 0, True, "4", 2.0])
+def test_bad_mirrors_setting_is_a_config_error(bad):
+    with pytest.raises(ConfigError, match=r"pipeline.mirrors must be one of \[1, 2, 4, 8\]"):
+        PipelineConfig(mirrors=bad)
+
+
 @pytest.mark.parametrize("bad", ["yes", 1, None])
 def test_bad_slow_edges_setting_is_a_config_error(bad):
     with pytest.raises(ConfigError, match="pipeline.slow_edges must be true or false"):

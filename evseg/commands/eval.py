@@ -31,7 +31,7 @@ TARGETS = {
 MODEL_TARGETS = ("flow", "flow-real", "pipeline")
 
 # Targets whose function takes ``mirrors`` (the learned flow's mirror looks, ``evseg flow --mirrors``).
-MIRRORS_TARGETS = ("flow", "flow-real")
+MIRRORS_TARGETS = ("flow", "flow-real", "pipeline", "pipeline-real", "static")
 
 # Targets whose function takes ``slow_edges`` (the pipeline's learned flow with the slow-edge look).
 SLOW_EDGES_TARGETS = ("pipeline", "pipeline-real", "static")
@@ -66,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
             from evseg.errors import EvsegError
 
             raise EvsegError(f"--mirrors applies to {', '.join(MIRRORS_TARGETS)}, not to '{args.target}' "
-                             "(the pipeline's flow has one look)")
+                             "(it evaluates ground-truth flow)")
         options["mirrors"] = args.mirrors
     emit_table(fn(quick=args.quick, **options), args.out)
     return 0

@@ -54,6 +54,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "the time (a better direction for slow edges, 1.5-2.4x the flow's time on slow "
                         "scenes; off by default: more false objects on real one-motion recordings; "
                         "README, Normal flow)")
+    p.add_argument("--mirrors", type=int, choices=[1, 2, 4, 8], default=1,
+                   help="learned flow: average it over this many mirror images of each window (fewer "
+                        "false objects, at this many times the flow's time: for offline runs; README, Pipeline)")
     p.add_argument("--masks", action="store_true", help="also store dense object masks in the result")
     p.add_argument("--video", type=Path, default=None, help="write an overlay video (.mp4)")
     p.add_argument("--frames", type=Path, default=None, help="write one overlay PNG per window here")
@@ -84,6 +87,7 @@ def run(args: argparse.Namespace) -> int:
         min_track_windows=args.min_track_windows,
         fast_edges=not args.no_fast_edges,
         slow_edges=args.slow_edges,
+        mirrors=args.mirrors,
         masks=args.masks,
         video=args.video,
         frames=args.frames,
