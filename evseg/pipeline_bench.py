@@ -15,7 +15,8 @@ preparation run meanwhile in a worker process (``PipelineConfig.overlap``, ``wor
 the stage figures add up to more than it. The 1 M events/s stream is also timed with the
 worker on a thread of the same process, with ``overlap`` off (one window after the other),
 where ``total`` is also the time one window takes from its events to its labels, and with the
-learned flow's slow-edge look (``PipelineConfig.slow_edges``, ``evseg segment --slow-edges``).
+learned flow's slow-edge look (``PipelineConfig.slow_edges``, ``evseg segment --slow-edges``)
+and with its 8 mirror looks (``PipelineConfig.mirrors``, ``evseg segment --mirrors 8``).
 """
 
 from __future__ import annotations
@@ -124,6 +125,9 @@ def benchmark(repeats: int = 3, quick: bool = False) -> list[dict]:
                 rows.append(row)
                 row = {"input": f"simulated 346x260, {rec.stream.rate_ev_s / 1e6:.2f} M ev/s, --slow-edges"}
                 row.update(time_pipeline(path, repeats, slow_edges=True))
+                rows.append(row)
+                row = {"input": f"simulated 346x260, {rec.stream.rate_ev_s / 1e6:.2f} M ev/s, --mirrors 8"}
+                row.update(time_pipeline(path, repeats, mirrors=8))
                 rows.append(row)
     if not quick:
         rows += _real_recordings(repeats)
