@@ -104,8 +104,8 @@ def test_a_mirror_look_is_the_flow_of_the_mirrored_events_mapped_back():
         mev, msize = mirror_events(ev, size, k)
         ref, ref_unc = _flow(OnnxNormalFlow(threads=1), mev, a, b, msize, targets)
         back = np.stack(unmirror_flow(ref[:, 0], ref[:, 1], k), 1)
-        # Same sums of phases, rounded in float32 at other coordinates: measured up to 8e-4
-        # relative (5.7 k targets, median 5e-7).
+        # Same sums of phases, rounded in float32 at other coordinates: measured up to 5e-4
+        # relative (3,499 targets, median 5e-7; up to 8e-4 on other windows).
         rel = np.hypot(*(flow - back).T) / np.maximum(np.hypot(*back.T), 1.0)
         assert rel.max() < 5e-3 and np.median(rel) < 1e-5
         np.testing.assert_allclose(unc, ref_unc, atol=5e-4)
@@ -119,7 +119,7 @@ def test_eight_looks_make_the_estimator_mirror_equivariant_and_more_accurate():
     flow, unc = _flow(est, ev, a, b, size, targets)
     assert set(est.last_timing_s) == {"encode", "network", "fast_edges", "slow_edges"}
     # Lone events: one vector mirrored 8 times cancels, so their direction is rounding noise
-    # and their uncertainty says so (66 of these 3.5 k targets, all above 7 rad).
+    # and their uncertainty says so (66 of these 3,499 targets, all above 7 rad).
     has_direction = unc < 2.0
     assert 0.9 < has_direction.mean() < 1.0
     for k in (3, 5):  # the flipped (or rotated) recording gets the flipped (rotated) flow
@@ -135,14 +135,15 @@ def test_eight_looks_make_the_estimator_mirror_equivariant_and_more_accurate():
     mev, msize = mirror_events(ev, size, 3)
     m1, _ = _flow(one, mev, a, b, msize, targets)
     back1 = np.stack(unmirror_flow(m1[:, 0], m1[:, 1], 3), 1)
-    assert np.median(angular_error_deg(f1, back1)) > 2.0
-    # Accuracy on this window (measured: median angular error 13.9 -> 12.4 deg over 5.7 k
-    # targets); the margin allows other CPUs' rounding, not the gain to vanish.
+    assert np.median(angular_error_deg(f1, back1)) > 2.0  # measured 8.7 deg
+    # Accuracy on this window (measured: median angular error 15.3 -> 14.3 deg over 3,349
+    # targets with ground truth); float32 rounding moves flows by ~1e-4 relative, far below
+    # the margin, which still fails if the gain halves.
     t = truth[b + targets]
     ok = np.isfinite(t[:, 0]) & (np.hypot(t[:, 0], t[:, 1]) > 0)
     e1 = np.median(angular_error_deg(f1[ok], t[ok]))
     e8 = np.median(angular_error_deg(flow[ok], t[ok]))
-    assert e8 < e1 - 0.8
+    assert e8 < e1 - 0.5
 
 
 def test_mirror_looks_use_a_calibration_s_undistorted_positions():
