@@ -157,3 +157,15 @@ def test_mirror_looks_use_a_calibration_s_undistorted_positions():
     cal = Calibration(K, np.zeros(4), size)  # no distortion: undistorted = raw positions
     f = flow_with_context(est, ev[b:], size, targets, ev[a:b], cal, history=ev[:a])
     np.testing.assert_allclose(np.stack([f.nx, f.ny], 1)[has_direction], plain[has_direction], rtol=1e-3, atol=1e-2)
+
+
+def test_mirror_looks_handle_empty_slices_and_targets():
+    from evseg.events import make_events
+
+    ev = make_events(np.array([1, 2, 3]), np.array([1, 2, 3]), np.array([100, 200, 300]), np.array([1, 1, -1]))
+    est = OnnxNormalFlow(mirrors=8)
+    for events, targets in ((ev, np.zeros(0, np.int64)), (ev[:0], None)):
+        f = est(events, (8, 8), targets)
+        assert len(f.index) == 0 and f.nx.dtype == np.float32 and f.uncertainty.dtype == np.float32
+    f = est(ev, (8, 8))
+    assert len(f.index) == 3 and np.all(np.isfinite(f.nx)) and np.all(f.uncertainty > 0)
