@@ -64,11 +64,13 @@ def test_model_option_only_where_a_learned_flow_runs(capsys):
     assert err == ["evseg eval: error: --model applies to flow, flow-real, pipeline, not to 'seg'"]
 
 
-def test_slow_edges_option_reaches_the_pipeline_evaluations(monkeypatch, tmp_path, capsys):
-    """`evseg eval pipeline|pipeline-real|static --slow-edges` runs the pipeline with the slow-edge
-    look; other targets refuse the option with one line."""
+@pytest.fixture
+def fake_evaluations(monkeypatch):
+    """The evaluation functions of `evseg eval` flow, flow-real, pipeline, pipeline-real and
+    static replaced by fakes that record their options in the returned dict (target -> options)."""
     import evseg.pipeline_eval as pipeline_eval
     import evseg.pipeline_real as pipeline_real
+    import evseg.train.evaluate as evaluate
 
     seen = {}
 
@@ -78,9 +80,18 @@ def test_slow_edges_option_reaches_the_pipeline_evaluations(monkeypatch, tmp_pat
             return [{"scene": "all", "detection rate %": 1.0}]
         return run
 
+    monkeypatch.setattr(evaluate, "evaluate_flow", fake("flow"))
+    monkeypatch.setattr(evaluate, "evaluate_flow_real", fake("flow-real"))
     monkeypatch.setattr(pipeline_eval, "evaluate_pipeline_and_oracle", fake("pipeline"))
     monkeypatch.setattr(pipeline_real, "evaluate_pipeline_real", fake("pipeline-real"))
     monkeypatch.setattr(pipeline_eval, "evaluate_static_camera", fake("static"))
+    return seen
+
+
+def test_slow_edges_option_reaches_the_pipeline_evaluations(fake_evaluations, tmp_path, capsys):
+    """`evseg eval pipeline|pipeline-real|static --slow-edges` runs the pipeline with the slow-edge
+    look; other targets refuse the option with one line."""
+    seen = fake_evaluations
     for target in ("pipeline", "pipeline-real", "static"):
         assert main(["eval", target, "--quick", "--slow-edges", "--out", str(tmp_path / "t.md")]) == 0
         assert seen[target] == {"slow_edges": True}
@@ -93,27 +104,11 @@ def test_slow_edges_option_reaches_the_pipeline_evaluations(monkeypatch, tmp_pat
         "(evseg eval flow measures the estimator with the look already)")
 
 
-def test_mirrors_option_reaches_the_flow_evaluations(monkeypatch, tmp_path, capsys):
+def test_mirrors_option_reaches_the_flow_evaluations(fake_evaluations, tmp_path, capsys):
     """`evseg eval flow|flow-real|pipeline|pipeline-real|static --mirrors N` evaluates with the
     learned flow's N mirror looks; `seg` (ground-truth flow) refuses the option with one line,
     and counts other than 1, 2, 4, 8 are refused."""
-    import evseg.pipeline_eval as pipeline_eval
-    import evseg.pipeline_real as pipeline_real
-    import evseg.train.evaluate as evaluate
-
-    seen = {}
-
-    def fake(name):
-        def run(quick, **options):
-            seen[name] = options
-            return [{"preset": "overall", "ae_learned": 1.0}]
-        return run
-
-    monkeypatch.setattr(evaluate, "evaluate_flow", fake("flow"))
-    monkeypatch.setattr(evaluate, "evaluate_flow_real", fake("flow-real"))
-    monkeypatch.setattr(pipeline_eval, "evaluate_pipeline_and_oracle", fake("pipeline"))
-    monkeypatch.setattr(pipeline_real, "evaluate_pipeline_real", fake("pipeline-real"))
-    monkeypatch.setattr(pipeline_eval, "evaluate_static_camera", fake("static"))
+    seen = fake_evaluations
     for target in ("flow", "flow-real", "pipeline", "pipeline-real", "static"):
         assert main(["eval", target, "--quick", "--mirrors", "4", "--out", str(tmp_path / "t.md")]) == 0
         assert seen[target] == {"mirrors": 4}
