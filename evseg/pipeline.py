@@ -155,11 +155,12 @@ class PipelineConfig:
             raise ConfigError(f"pipeline.fast_edges must be true or false, got {self.fast_edges!r}")
         if not isinstance(self.slow_edges, (bool, np.bool_)):
             raise ConfigError(f"pipeline.slow_edges must be true or false, got {self.slow_edges!r}")
-        from evseg.veckm_flow.mirrors import MIRROR_GROUPS
+        from evseg.veckm_flow.mirrors import mirror_looks
 
-        if isinstance(self.mirrors, (bool, np.bool_)) or not isinstance(self.mirrors, (int, np.integer)) \
-                or int(self.mirrors) not in MIRROR_GROUPS:
-            raise ConfigError(f"pipeline.mirrors must be one of {sorted(MIRROR_GROUPS)}, got {self.mirrors!r}")
+        try:
+            mirror_looks(self.mirrors)
+        except ConfigError as exc:
+            raise ConfigError(f"pipeline.{exc}") from None
         ctx = self.flow_context_us
         if not (isinstance(ctx, (int, np.integer)) or (isinstance(ctx, float) and ctx.is_integer())) or ctx < 0:
             raise ConfigError(f"pipeline.flow_context_us must be a non-negative integer (us), got {ctx!r}")

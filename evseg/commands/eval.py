@@ -55,18 +55,19 @@ def run(args: argparse.Namespace) -> int:
     fn = resolve_target("evaluation", TARGETS, args.target)
     options = model_options(args, MODEL_TARGETS)
     if args.slow_edges:
-        if args.target not in SLOW_EDGES_TARGETS:
-            from evseg.errors import EvsegError
-
-            raise EvsegError(f"--slow-edges applies to {', '.join(SLOW_EDGES_TARGETS)}, not to '{args.target}' "
-                             "(evseg eval flow measures the estimator with the look already)")
-        options["slow_edges"] = True
+        options["slow_edges"] = _only_for(args.target, "--slow-edges", SLOW_EDGES_TARGETS, True,
+                                          "evseg eval flow measures the estimator with the look already")
     if args.mirrors != 1:
-        if args.target not in MIRRORS_TARGETS:
-            from evseg.errors import EvsegError
-
-            raise EvsegError(f"--mirrors applies to {', '.join(MIRRORS_TARGETS)}, not to '{args.target}' "
-                             "(it evaluates ground-truth flow)")
-        options["mirrors"] = args.mirrors
+        options["mirrors"] = _only_for(args.target, "--mirrors", MIRRORS_TARGETS, args.mirrors,
+                                       "it evaluates ground-truth flow")
     emit_table(fn(quick=args.quick, **options), args.out)
     return 0
+
+
+def _only_for(target: str, flag: str, targets: tuple[str, ...], value, why: str):
+    """``value`` when ``target`` is one of ``targets``, else a one-line error naming ``flag``."""
+    if target not in targets:
+        from evseg.errors import EvsegError
+
+        raise EvsegError(f"{flag} applies to {', '.join(targets)}, not to '{target}' ({why})")
+    return value
