@@ -2,7 +2,7 @@
 
 Public API::
 
-    from evseg.veckm_flow import (EncodingConfig, encode_targets, select_targets, FlowHead,
+    from evseg.veckm_flow import (EncodingConfig, encode_targets, encode_targets_looks, select_targets, FlowHead,
                                   PlaneFitNormalFlow, OnnxNormalFlow, NormalFlow,
                                   head_output_to_flow, flow_to_head_units, load_head_checkpoint)
 
@@ -11,7 +11,7 @@ lazily, so ``import evseg.veckm_flow`` and the ONNX inference path never import 
 """
 
 from evseg.veckm_flow.baseline import PlaneFitNormalFlow, plane_fit_normal_flow, time_surface
-from evseg.veckm_flow.encoding import EncodingConfig, encode_targets, encoding_matrix
+from evseg.veckm_flow.encoding import EncodingConfig, encode_targets, encode_targets_looks, encoding_matrix
 from evseg.veckm_flow.result import NormalFlow, flow_to_head_units, head_output_to_flow
 from evseg.veckm_flow.targets import select_targets
 
@@ -24,7 +24,7 @@ _LAZY = {
 }
 
 __all__ = [
-    "EncodingConfig", "encode_targets", "encoding_matrix", "select_targets", "NormalFlow",
+    "EncodingConfig", "encode_targets", "encode_targets_looks", "encoding_matrix", "select_targets", "NormalFlow",
     "head_output_to_flow", "flow_to_head_units", "PlaneFitNormalFlow", "plane_fit_normal_flow",
     "time_surface", *_LAZY,
 ]

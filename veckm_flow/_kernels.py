@@ -142,141 +142,159 @@ def order_targets(targets, x, y, t, p, t0, polarity, width, height, nblk):  # pr
 
 
 @njit(cache=True, fastmath=_FASTMATH, inline="always")
-def _spatial_phase(rows, cols, yy, xx, m):  # pragma: no cover
-    """Feature ``m`` of the spatial phase of pixel ``(xx, yy)``: ``rows[yy, xx or 0] *
-    cols[xx, 0]`` (``encoding.SpatialPhase``), as (real, imaginary)."""
-    xr = xx if rows.shape[1] > 1 else 0
-    ar = rows[yy, xr, 0, m]
-    ai = rows[yy, xr, 1, m]
-    br = cols[xx, 0, 0, m]
-    bi = cols[xx, 0, 1, m]
-    return ar * br - ai * bi, ar * bi + ai * br
+def _pixel_phase(rows, cols, look, yy, xx):  # pragma: no cover
+    """Look ``look``'s spatial phase factors of pixel ``(xx, yy)``, planar ``(2, d)`` each:
+    ``rows[look][yy, xx or 0]`` and ``cols[look][xx, 0]`` (``encoding.SpatialPhase``), whose
+    complex product is the phase. Taken once per pixel, outside the loops over the d features:
+    a tuple indexed by a variable inside them kept LLVM from vectorising (8 looks took 43
+    instead of ~25 ms)."""
+    ra = rows[look]
+    return ra[yy, xx if ra.shape[1] > 1 else 0], cols[look][xx, 0]
 
 
 @njit(cache=True, fastmath=_FASTMATH, inline="always")
-def _pixel_value(p, start, sdt, spol, hi, lo, lo_bits, rows, cols, yy, u, out, slot):  # pragma: no cover
-    """``out[slot] = phase(yy, u) * sum over the pixel's events of hi * lo`` (planar), with
-    ``phase(yy, u) = rows[yy, u or 0] * cols[u, 0]`` (``encoding.SpatialPhase``)."""
-    d = out.shape[2]
+def _event_sum(p, start, sdt, spol, hi, lo, lo_bits, acc):  # pragma: no cover
+    """``acc = sum over pixel p's events of hi * lo`` (planar (2, d)): the pixel's time and
+    polarity phases, the same in every look."""
+    d = acc.shape[1]
     mask = (1 << lo_bits) - 1
     for m in range(d):
-        out[slot, 0, m] = 0.0
-        out[slot, 1, m] = 0.0
+        acc[0, m] = 0.0
+        acc[1, m] = 0.0
     for q in range(start[p], start[p + 1]):
         h = sdt[q] >> lo_bits
         l = sdt[q] & mask
         b = spol[q]
         for m in range(d):
-            out[slot, 0, m] += hi[h, 0, m] * lo[b, l, 0, m] - hi[h, 1, m] * lo[b, l, 1, m]
-            out[slot, 1, m] += hi[h, 0, m] * lo[b, l, 1, m] + hi[h, 1, m] * lo[b, l, 0, m]
-    for m in range(d):
-        fr = out[slot, 0, m]
-        fi = out[slot, 1, m]
-        pr, pi = _spatial_phase(rows, cols, yy, u, m)
-        out[slot, 0, m] = fr * pr - fi * pi
-        out[slot, 1, m] = fr * pi + fi * pr
+            acc[0, m] += hi[h, 0, m] * lo[b, l, 0, m] - hi[h, 1, m] * lo[b, l, 1, m]
+            acc[1, m] += hi[h, 0, m] * lo[b, l, 1, m] + hi[h, 1, m] * lo[b, l, 0, m]
 
 
 @njit(cache=True, fastmath=_FASTMATH, inline="always")
-def _enter_box(start, sdt, spol, hi, lo, lo_bits, rows, cols, yy, u, row0, ring, box):  # pragma: no cover
-    """Pixel ``(u, yy)`` enters the sliding box: its value goes to its ``ring`` slot and is
-    added to ``box``; returns its event count (0: nothing to do)."""
+def _enter_box(start, sdt, spol, hi, lo, lo_bits, rows, cols, yy, u, row0, ring, box, ev):  # pragma: no cover
+    """Pixel ``(u, yy)`` enters the sliding box of every look: its value ``phase_look * sum
+    over its events of hi * lo`` goes to its ``ring`` slot and is added to ``box`` (the event
+    sum, in ``ev``, is computed once for all looks); returns its event count (0: nothing to do)."""
     n = start[row0 + u + 1] - start[row0 + u]
     if n > 0:
-        s = u % ring.shape[0]
-        _pixel_value(row0 + u, start, sdt, spol, hi, lo, lo_bits, rows, cols, yy, u, ring, s)
-        for m in range(box.shape[1]):
-            box[0, m] += ring[s, 0, m]
-            box[1, m] += ring[s, 1, m]
+        s = u % ring.shape[1]
+        _event_sum(row0 + u, start, sdt, spol, hi, lo, lo_bits, ev)
+        for look in range(len(rows)):
+            ra, ca = _pixel_phase(rows, cols, look, yy, u)
+            rg = ring[look, s]
+            bx = box[look]
+            for m in range(box.shape[2]):
+                pr = ra[0, m] * ca[0, m] - ra[1, m] * ca[1, m]
+                pi = ra[0, m] * ca[1, m] + ra[1, m] * ca[0, m]
+                vr = ev[0, m] * pr - ev[1, m] * pi
+                vi = ev[0, m] * pi + ev[1, m] * pr
+                rg[0, m] = vr
+                rg[1, m] = vi
+                bx[0, m] += vr
+                bx[1, m] += vi
     return n
 
 
 @njit(cache=True, fastmath=_FASTMATH, inline="always")
-def _row_box(start, sdt, spol, hi, lo, lo_bits, rows, cols, k, yy, x0, x1, W, ring, box, out, cnt):  # pragma: no cover
-    """Row ``yy``'s box sums along x (``|dx| <= k``) of the per-pixel field ``phase * sum_events
-    hi * lo`` for columns ``x0 <= x < x1``: ``out[x - x0]`` (planar) and counts ``cnt[x - x0]``.
+def _row_box(start, sdt, spol, hi, lo, lo_bits, rows, cols, k, yy, x0, x1, W, ring, box, ev, out, cnt):  # pragma: no cover
+    """Row ``yy``'s box sums along x (``|dx| <= k``) of each look's per-pixel field ``phase_look
+    * sum_events hi * lo`` for columns ``x0 <= x < x1``: ``out[look, x - x0]`` (planar) and
+    counts ``cnt[x - x0]``.
 
     The field is never stored: a pixel's value is computed from its events (``pixel_lists``)
     when it enters the sliding box and kept in the small ``ring`` until it leaves, so only
     pixels with events cost anything."""
-    d = box.shape[1]
-    ring_n = ring.shape[0]
+    n_looks = len(rows)
+    d = box.shape[2]
+    ring_n = ring.shape[1]
     row0 = yy * W
-    for m in range(d):
-        box[0, m] = 0.0
-        box[1, m] = 0.0
+    for look in range(n_looks):
+        for m in range(d):
+            box[look, 0, m] = 0.0
+            box[look, 1, m] = 0.0
     cb = 0
     for u in range(max(x0 - 1 - k, 0), min(x0 - 1 + k, W - 1) + 1):
-        cb += _enter_box(start, sdt, spol, hi, lo, lo_bits, rows, cols, yy, u, row0, ring, box)
+        cb += _enter_box(start, sdt, spol, hi, lo, lo_bits, rows, cols, yy, u, row0, ring, box, ev)
     for xx in range(x0, x1):
         u = xx + k
         if u < W:
-            cb += _enter_box(start, sdt, spol, hi, lo, lo_bits, rows, cols, yy, u, row0, ring, box)
+            cb += _enter_box(start, sdt, spol, hi, lo, lo_bits, rows, cols, yy, u, row0, ring, box, ev)
         u = xx - k - 1
         if u >= 0:
             n = start[row0 + u + 1] - start[row0 + u]
             if n > 0:
                 cb -= n
                 s = u % ring_n
-                for m in range(d):
-                    box[0, m] -= ring[s, 0, m]
-                    box[1, m] -= ring[s, 1, m]
+                for look in range(n_looks):
+                    for m in range(d):
+                        box[look, 0, m] -= ring[look, s, 0, m]
+                        box[look, 1, m] -= ring[look, s, 1, m]
         cnt[xx - x0] = cb
-        for m in range(d):
-            out[xx - x0, 0, m] = box[0, m]
-            out[xx - x0, 1, m] = box[1, m]
+        for look in range(n_looks):
+            for m in range(d):
+                out[look, xx - x0, 0, m] = box[look, 0, m]
+                out[look, xx - x0, 1, m] = box[look, 1, m]
 
 
 @njit(cache=True, fastmath=_FASTMATH, inline="always")
 def _emit(r, o, xx, yy, y_lo, y_hi, x0, row_sums, row_cnt, tdt, tpol, rows, cols, hi, lo, lo_bits, out, acc):  # pragma: no cover
-    """Features of target ``r`` (pixel ``(xx, yy)``) into ``out[o]``: the sum of the row box sums
-    of rows ``y_lo..y_hi`` (held in the row ring), times ``conj(phase * hi * lo)`` of the target
-    itself, rescaled to norm sqrt(d), then ``log(1 + n)``. ``acc`` is a (2, d) scratch of the
-    calling thread: summing there rather than in ``out`` measured ~2-4 % faster (one thread)."""
+    """Features of target ``r`` (pixel ``(xx, yy)``) into ``out[look, o]`` for every look: the
+    sum of the row box sums of rows ``y_lo..y_hi`` (held in the row ring), times ``conj(phase *
+    hi * lo)`` of the target itself, rescaled to norm sqrt(d), then ``log(1 + n)``. ``acc`` is
+    a (2, d) scratch of the calling thread: summing there rather than in ``out`` measured ~2-4 %
+    faster (one thread)."""
     d = hi.shape[2]
     nrow = row_sums.shape[0]
     mask = (1 << lo_bits) - 1
     c = xx - x0
-    for m in range(d):
-        acc[0, m] = 0.0
-        acc[1, m] = 0.0
     cnt = 0
     for row in range(y_lo, y_hi + 1):
-        sl = row % nrow
-        cnt += row_cnt[sl, c]
-        for m in range(d):
-            acc[0, m] += row_sums[sl, c, 0, m]
-            acc[1, m] += row_sums[sl, c, 1, m]
+        cnt += row_cnt[row % nrow, c]
     h = tdt[r] >> lo_bits
     l = tdt[r] & mask
     q = tpol[r]
-    s = np.float32(0.0)
-    for m in range(d):
-        gr = acc[0, m]
-        gi = acc[1, m]
-        tr = hi[h, 0, m] * lo[q, l, 0, m] - hi[h, 1, m] * lo[q, l, 1, m]
-        ti = hi[h, 0, m] * lo[q, l, 1, m] + hi[h, 1, m] * lo[q, l, 0, m]
-        sr, si = _spatial_phase(rows, cols, yy, xx, m)
-        pr = sr * tr - si * ti
-        pi = -(sr * ti + si * tr)
-        vr = gr * pr - gi * pi
-        vi = gr * pi + gi * pr
-        acc[0, m] = vr
-        acc[1, m] = vi
-        s += vr * vr + vi * vi
-    f = np.float32(np.sqrt(np.float32(d))) / max(np.sqrt(s), np.float32(1e-12))
-    for m in range(d):
-        out[o, m] = acc[0, m] * f
-        out[o, d + m] = acc[1, m] * f
-    out[o, 2 * d] = np.log1p(np.float32(cnt))
+    for look in range(len(rows)):
+        for m in range(d):
+            acc[0, m] = 0.0
+            acc[1, m] = 0.0
+        for row in range(y_lo, y_hi + 1):
+            sl = row % nrow
+            for m in range(d):
+                acc[0, m] += row_sums[sl, look, c, 0, m]
+                acc[1, m] += row_sums[sl, look, c, 1, m]
+        s = np.float32(0.0)
+        ra, ca = _pixel_phase(rows, cols, look, yy, xx)
+        for m in range(d):
+            gr = acc[0, m]
+            gi = acc[1, m]
+            tr = hi[h, 0, m] * lo[q, l, 0, m] - hi[h, 1, m] * lo[q, l, 1, m]
+            ti = hi[h, 0, m] * lo[q, l, 1, m] + hi[h, 1, m] * lo[q, l, 0, m]
+            sr = ra[0, m] * ca[0, m] - ra[1, m] * ca[1, m]
+            si = ra[0, m] * ca[1, m] + ra[1, m] * ca[0, m]
+            pr = sr * tr - si * ti
+            pi = -(sr * ti + si * tr)
+            vr = gr * pr - gi * pi
+            vi = gr * pi + gi * pr
+            acc[0, m] = vr
+            acc[1, m] = vi
+            s += vr * vr + vi * vi
+        f = np.float32(np.sqrt(np.float32(d))) / max(np.sqrt(s), np.float32(1e-12))
+        for m in range(d):
+            out[look, o, m] = acc[0, m] * f
+            out[look, o, d + m] = acc[1, m] * f
+        out[look, o, 2 * d] = np.log1p(np.float32(cnt))
 
 
 @njit(cache=True, parallel=True, fastmath=_FASTMATH, nogil=True)
 def window_features(start, sdt, spol, hi, lo, lo_bits, row_used, rows, cols, k, nblk,
                     tx, ty, tdt, tpol, slot, blk_start):  # pragma: no cover
-    """Features (T, 2d+1) float32 of the targets: for each, the sum over its (2k+1)^2 pixel
-    window of ``phase * sum_events hi * lo``, with its own phase removed; row ``slot[r]``
-    holds target r.
+    """Features (L, T, 2d+1) float32 of the targets in L looks: for each, the sum over its
+    (2k+1)^2 pixel window of ``phase_look * sum_events hi * lo``, with its own phase removed;
+    row ``slot[r]`` holds target r. ``rows`` ``(L, H, W or 1, 2, d)`` and ``cols`` ``(L, W, 1,
+    2, d)`` are the looks' spatial phases (``encoding.SpatialPhase`` stacked); the looks share
+    the time and polarity phases ``hi``, ``lo`` (mirror images of the slice,
+    ``mirrors.py``), so each pixel's sum over its events, most of the work, is computed once
+    for all of them.
 
     One pass down the rows per block of columns (threads own blocks; block c spans columns
     ``c W // nblk`` to ``(c + 1) W // nblk``). Each row's box sums along x go into a ring of
@@ -287,27 +305,29 @@ def window_features(start, sdt, spol, hi, lo, lo_bits, row_used, rows, cols, k, 
     of two long running sums (less float32 rounding). Targets come grouped by block
     (``blk_start``) and sorted by row within a block.
     """
+    n_looks = len(rows)
     H = row_used.shape[0]
     W = (start.shape[0] - 1) // H
     d = hi.shape[2]
     nt = tx.shape[0]
-    out = np.empty((nt, 2 * d + 1), np.float32)
+    out = np.empty((n_looks, nt, 2 * d + 1), np.float32)
     nrow = 2 * k + 1
     for c in prange(nblk):
         x0 = c * W // nblk
         x1 = (c + 1) * W // nblk
         bw = x1 - x0
-        box = np.empty((2, d), np.float32)
+        box = np.empty((n_looks, 2, d), np.float32)
+        ev = np.empty((2, d), np.float32)
         acc = np.empty((2, d), np.float32)
-        ring = np.empty((2 * k + 2, 2, d), np.float32)
-        row_sums = np.zeros((nrow, bw, 2, d), np.float32)
+        ring = np.empty((n_looks, 2 * k + 2, 2, d), np.float32)
+        row_sums = np.zeros((nrow, n_looks, bw, 2, d), np.float32)
         row_cnt = np.zeros((nrow, bw), np.int64)
         r = blk_start[c]
         r_end = blk_start[c + 1]
         for yy in range(H):
             sl = yy % nrow
             if row_used[yy]:
-                _row_box(start, sdt, spol, hi, lo, lo_bits, rows, cols, k, yy, x0, x1, W, ring, box,
+                _row_box(start, sdt, spol, hi, lo, lo_bits, rows, cols, k, yy, x0, x1, W, ring, box, ev,
                          row_sums[sl], row_cnt[sl])
             else:
                 row_sums[sl] = 0.0

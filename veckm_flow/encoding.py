@@ -48,7 +48,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, fields, replace
 from functools import lru_cache
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
@@ -425,14 +425,71 @@ def encode_targets(
         float32 ``(T, levels (2 d + 1))``: per pyramid level ``[Re G, Im G]`` rescaled to norm
         ``sqrt(d)``, ``log(1 + n)``.
     """
+    A = encoding_matrix(cfg) if matrix is None else _check_matrix(matrix, cfg)
+    return _encode_looks(events, targets, sensor_size, cfg, (A,), calibration, (phase_xy,))[0]
+
+
+def encode_targets_looks(
+    events: np.ndarray,
+    targets: np.ndarray,
+    sensor_size: tuple[int, int],
+    cfg: EncodingConfig,
+    matrices: "Sequence[np.ndarray]",
+    calibration: "Calibration | None" = None,
+    phases: "Sequence[tuple[SpatialPhase, ...] | None] | None" = None,
+) -> np.ndarray:
+    """:func:`encode_targets` of the same targets with several random matrices at once, such
+    as the mirror images of :mod:`evseg.veckm_flow.mirrors`.
+
+    The matrices must share every row but x and y (time and polarity): a pixel's sum over its
+    events, most of the encoding's work, is then the same in every look and computed once;
+    only the spatial phases differ. The result equals stacking :func:`encode_targets` with
+    each matrix, bit for bit.
+
+    Args:
+        matrices: L ``cfg.matrix_shape`` matrices.
+        phases: optional, per matrix, its :func:`pyramid_phases` (saves their cost).
+        Other arguments: as :func:`encode_targets`.
+
+    Returns:
+        float32 ``(L, T, levels (2 d + 1))``, look ``l`` encoded with ``matrices[l]``.
+
+    Example:
+        >>> from evseg.events import make_events
+        >>> from evseg.veckm_flow.mirrors import mirrored_encoding_matrix
+        >>> ev = make_events([1, 2, 2], [1, 1, 2], [0, 500, 900], [1, -1, 1])
+        >>> cfg = EncodingConfig(d=4, window_px=1, polarity=True)
+        >>> A = encoding_matrix(cfg)
+        >>> looks = encode_targets_looks(ev, np.array([2]), (4, 4), cfg, [A, mirrored_encoding_matrix(A, 5)])
+        >>> looks.shape
+        (2, 1, 9)
+        >>> bool(np.array_equal(looks[1], encode_targets(ev, np.array([2]), (4, 4), cfg,
+        ...                                              matrix=mirrored_encoding_matrix(A, 5))))
+        True
+    """
+    mats = tuple(_check_matrix(m, cfg) for m in matrices)
+    if not mats:
+        raise ConfigError("encode_targets_looks needs at least one matrix")
+    if any(not np.array_equal(m[2:], mats[0][2:]) for m in mats[1:]):
+        raise ConfigError("the looks' encoding matrices must share their time (and polarity) rows; "
+                          "only rows x and y may differ")
+    if phases is not None and len(phases) != len(mats):
+        raise EventDataError(f"phases holds {len(phases)} look(s) for {len(mats)} matrices")
+    return _encode_looks(events, targets, sensor_size, cfg, mats, calibration,
+                         tuple(phases) if phases is not None else (None,) * len(mats))
+
+
+def _encode_looks(events, targets, sensor_size, cfg: EncodingConfig, matrices: tuple, calibration,
+                  phase_xy: tuple) -> np.ndarray:
+    """Features ``(L, T, F)`` of the targets under each (checked) matrix; ``phase_xy`` per
+    matrix as :func:`encode_targets` takes it (or None)."""
     from evseg.veckm_flow import _kernels
 
     targets = _validate_targets(targets, len(events))
     width, height = int(sensor_size[0]), int(sensor_size[1])
-    A = encoding_matrix(cfg) if matrix is None else _check_matrix(matrix, cfg)
-    phases = _level_phases(phase_xy, cfg, sensor_size, calibration, A)
+    phases = [_level_phases(ph, cfg, sensor_size, calibration, A) for ph, A in zip(phase_xy, matrices)]
     if len(targets) == 0:
-        return np.zeros((0, cfg.n_features), np.float32)
+        return np.zeros((len(matrices), 0, cfg.n_features), np.float32)
     x, y, t, p = events["x"], events["y"], events["t"], events["p"]  # views, read in place
     max_x, max_y, t0, t1 = _kernels.slice_extent(x, y, t)
     if max_x >= width or max_y >= height:
@@ -443,13 +500,14 @@ def encode_targets(
             f"{MAX_SLICE_SPAN_US / 1e6:.0f} s (it encodes a neighbourhood of milliseconds)")
     single = cfg.level()
     out = []
-    for level, phase in enumerate(phases):
-        block = A[:, level * cfg.d:(level + 1) * cfg.d]
+    for level in range(cfg.pyramid_levels):
+        block = matrices[0][:, level * cfg.d:(level + 1) * cfg.d]  # its time rows are every look's
         # A coarse level is the same encoding of the events binned into 2^level px cells.
         xl, yl = (x, y) if level == 0 else (x >> level, y >> level)
         w, h = level_sensor_size(sensor_size, level)
-        out.append(_encode_level(xl, yl, t, p, t0, int(t1) - int(t0), targets, (w, h), single, phase, block))
-    return out[0] if len(out) == 1 else np.concatenate(out, axis=1)
+        out.append(_encode_level(xl, yl, t, p, t0, int(t1) - int(t0), targets, (w, h), single,
+                                 tuple(ph[level] for ph in phases), block))
+    return out[0] if len(out) == 1 else np.concatenate(out, axis=2)
 
 
 def _level_phases(phase_xy, cfg: EncodingConfig, sensor_size, calibration, matrix) -> tuple[SpatialPhase, ...]:
@@ -471,9 +529,10 @@ def _level_phases(phase_xy, cfg: EncodingConfig, sensor_size, calibration, matri
 
 
 def _encode_level(x, y, t, p, t0, span_us: int, targets: np.ndarray, size: tuple[int, int],
-                  cfg: EncodingConfig, phase: SpatialPhase, matrix: np.ndarray) -> np.ndarray:
-    """Features ``(T, 2 d + 1)`` of one pyramid level: ``x, y`` in the level's cells,
-    ``size`` its grid, ``cfg`` single-level, ``matrix`` its ``(3 or 4, d)`` block."""
+                  cfg: EncodingConfig, phases: tuple[SpatialPhase, ...], matrix: np.ndarray) -> np.ndarray:
+    """Features ``(L, T, 2 d + 1)`` of one pyramid level in L looks: ``x, y`` in the level's
+    cells, ``size`` its grid, ``cfg`` single-level, ``phases`` each look's spatial phase,
+    ``matrix`` a ``(3 or 4, d)`` block with the looks' common time rows."""
     from evseg.veckm_flow import _kernels
 
     width, height = size
@@ -490,8 +549,8 @@ def _encode_level(x, y, t, p, t0, span_us: int, targets: np.ndarray, size: tuple
     order, tx, ty, tdt, tpol, blk_start = _kernels.order_targets(
         targets, x, y, t, p, t0, cfg.polarity, width, height, nblk)
     return _kernels.window_features(
-        start, sdt, spol, hi, lo, _LO_BITS, row_used, phase.rows, phase.cols, cfg.window_px, nblk,
-        tx, ty, tdt, tpol, order, blk_start,
+        start, sdt, spol, hi, lo, _LO_BITS, row_used, tuple(ph.rows for ph in phases),
+        tuple(ph.cols for ph in phases), cfg.window_px, nblk, tx, ty, tdt, tpol, order, blk_start,
     )
 
 

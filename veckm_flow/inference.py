@@ -28,7 +28,7 @@ from evseg.veckm_flow.encoding import (
     EncodingConfig,
     SpatialPhase,
     _validate_targets,
-    encode_targets,
+    encode_targets_looks,
     pyramid_phases,
     undistorted_to_sensor_flow,
 )
@@ -42,6 +42,10 @@ if TYPE_CHECKING:  # pragma: no cover
 
 FORMAT = "evseg-normal-flow/1"
 DEFAULT_MODEL = Path(__file__).resolve().parent / "weights" / "normal_flow.onnx"
+PREDICT_ROWS = 16_384
+"""Most rows per onnxruntime call: 80,000 rows (8 mirror looks at 10,000 targets) took 33 ms in
+one call and 24-25 ms in runs of 4,096-16,384 (32,768: 31 ms; the hidden layers' activations
+then outgrow the core's cache), with the same outputs."""
 
 
 def read_model_metadata(path: str | Path) -> tuple[EncodingConfig, np.ndarray, dict]:
@@ -104,8 +108,9 @@ class OnnxNormalFlow:
             is slow (:mod:`evseg.veckm_flow.slow_edges`); it runs only when a call passes the
             events before the slice (``history``), None never.
         mirrors: how many mirror images of the slice the network looks at, 1, 2, 4 or 8
-            (:mod:`evseg.veckm_flow.mirrors`): their flows are averaged; each costs a full
-            flow computation. 1 (default): the slice as it is.
+            (:mod:`evseg.veckm_flow.mirrors`): their flows are averaged; 8 looks cost about 5x
+            the time of one (they share the encoding's per-event work). 1 (default): the
+            slice as it is.
 
     Call: ``est(events, sensor_size, targets=None, calibration=None, history=None) -> NormalFlow``.
     """
@@ -150,25 +155,39 @@ class OnnxNormalFlow:
         """Features float32 ``(T, levels (2 d + 1))`` of the targets (see :func:`encode_targets`);
         ``cfg``: another time scale of the model's encoding (the second looks), default its own;
         ``matrix``: another random matrix (a mirror look's), default the model's."""
+        return self.encode_looks(events, sensor_size, targets, calibration, cfg,
+                                 (self.matrix if matrix is None else matrix,))[0]
+
+    def encode_looks(self, events: np.ndarray, sensor_size, targets: np.ndarray, calibration=None,
+                     cfg: EncodingConfig | None = None, matrices=None) -> np.ndarray:
+        """Features float32 ``(L, T, levels (2 d + 1))`` of the targets with each of the
+        ``matrices`` (default: the model's alone), which must differ only in their x and y rows
+        (mirror looks; :func:`~evseg.veckm_flow.encoding.encode_targets_looks`, which computes
+        the work they share once)."""
         import numba
 
         cfg = self.cfg if cfg is None else cfg
-        matrix = self.matrix if matrix is None else matrix
-        phase = self._phase(sensor_size, calibration, matrix)
+        matrices = (self.matrix,) if matrices is None else tuple(matrices)
+        phases = tuple(self._phase(sensor_size, calibration, m) for m in matrices)
         if self.threads is None:
-            return encode_targets(events, targets, sensor_size, cfg, calibration, phase, matrix)
+            return encode_targets_looks(events, targets, sensor_size, cfg, matrices, calibration, phases)
         before = numba.get_num_threads()
         numba.set_num_threads(min(self.threads, numba.config.NUMBA_NUM_THREADS))
         try:
-            return encode_targets(events, targets, sensor_size, cfg, calibration, phase, matrix)
+            return encode_targets_looks(events, targets, sensor_size, cfg, matrices, calibration, phases)
         finally:
             numba.set_num_threads(before)
 
     def predict(self, feats: np.ndarray) -> np.ndarray:
-        """Raw head output float32 ``(T, 3)`` for features ``(T, F)``."""
+        """Raw head output float32 ``(T, 3)`` for features ``(T, F)``, in runs of at most
+        :data:`PREDICT_ROWS` rows (each row's output does not depend on the others)."""
         if len(feats) == 0:
             return np.zeros((0, 3), np.float32)
-        return self.session.run(None, {self._input: np.ascontiguousarray(feats, dtype=np.float32)})[0]
+        feats = np.ascontiguousarray(feats, dtype=np.float32)
+        if len(feats) <= PREDICT_ROWS:
+            return self.session.run(None, {self._input: feats})[0]
+        return np.concatenate([self.session.run(None, {self._input: feats[i:i + PREDICT_ROWS]})[0]
+                               for i in range(0, len(feats), PREDICT_ROWS)])
 
     def __call__(
         self,
@@ -199,85 +218,92 @@ class OnnxNormalFlow:
             targets = np.arange(len(events), dtype=np.int64)
         targets = _validate_targets(targets, len(events))
         timing = {"encode": 0.0, "network": 0.0, "fast_edges": 0.0, "slow_edges": 0.0}
-        looks = []
-        for k in self.looks:
-            nx, ny, unc = self._look(events, sensor_size, targets, calibration, history,
-                                     mirrored_encoding_matrix(self.matrix, k) if k else self.matrix, timing)
-            looks.append((*unmirror_flow(nx, ny, k), unc) if k else (nx, ny, unc))
+        matrices = tuple(mirrored_encoding_matrix(self.matrix, k) if k else self.matrix for k in self.looks)
+        looks = [(*unmirror_flow(nx, ny, k), unc) if k else (nx, ny, unc)
+                 for k, (nx, ny, unc) in zip(self.looks, self._looks(events, sensor_size, targets, calibration,
+                                                                     history, matrices, timing))]
         nx, ny, unc = looks[0] if len(looks) == 1 else combine_looks(looks)
         self.last_timing_s = timing
         if calibration is not None:
             nx, ny = undistorted_to_sensor_flow(nx, ny, events["x"][targets], events["y"][targets], calibration)
         return NormalFlow(targets, nx, ny, unc)
 
-    def _look(self, events, sensor_size, targets, calibration, history, matrix, timing):
-        """``(nx, ny, uncertainty)`` (px/s, rad; undistorted px with a calibration) of one look:
-        the first look with the encoding ``matrix`` and the second looks where their gates open;
-        adds its seconds to ``timing``."""
-        t0 = time.perf_counter()
-        feats = self.encode(events, sensor_size, targets, calibration, matrix=matrix)
-        t1 = time.perf_counter()
-        out = self.predict(feats)
-        timing["encode"] += t1 - t0
-        timing["network"] += time.perf_counter() - t1
-        first = head_output_to_flow(out, self.cfg)
+    def _looks(self, events, sensor_size, targets, calibration, history, matrices, timing):
+        """Per encoding matrix (mirror look), ``(nx, ny, uncertainty)`` (px/s, rad; undistorted
+        px with a calibration) of the first look and the second looks where their gates open,
+        all looks computed together; adds its seconds to ``timing``."""
+        first = self._second_look(events, sensor_size, targets, calibration, self.cfg, matrices, timing)
         if self.fast_edges is not None and len(targets):
-            first = self._fast_edges(events, sensor_size, targets, calibration, first, matrix, timing)
+            first = self._fast_edges(events, sensor_size, targets, calibration, first, matrices, timing)
         if self.slow_edges is not None and history is not None and len(history) and len(targets):
-            first = self._slow_edges(events, history, sensor_size, targets, calibration, first, matrix, timing)
+            first = self._slow_edges(events, history, sensor_size, targets, calibration, first, matrices, timing)
         return first
 
-    def _fast_edges(self, events, sensor_size, targets, calibration, first, matrix, timing):
-        """The first look ``(nx, ny, uncertainty)`` with the time-stretched second look mixed in
-        where the gate opens (:mod:`evseg.veckm_flow.fast_edges`); adds its seconds to ``timing``."""
+    def _fast_edges(self, events, sensor_size, targets, calibration, looks, matrices, timing):
+        """Each look's ``(nx, ny, uncertainty)`` with the time-stretched second look mixed in
+        where its gate opens (:mod:`evseg.veckm_flow.fast_edges`). Looks whose stretched
+        slices start at the same event (all of them unless gated targets lie before the last
+        ``1 / stretch`` of the slice) get it computed together, at the targets any of them
+        gates, so each look's result is the one it gets alone. Adds its seconds to ``timing``."""
         fe = self.fast_edges
         t0 = time.perf_counter()
-        speed = np.hypot(first[0], first[1]) / self.cfg.flow_unit_px_s
-        gated = np.flatnonzero(speed > fe.speed_from)
-        if len(gated) == 0:
-            timing["fast_edges"] += time.perf_counter() - t0
-            return first
+        speeds = [np.hypot(lk[0], lk[1]) / self.cfg.flow_unit_px_s for lk in looks]
+        gated = [np.flatnonzero(v > fe.speed_from) for v in speeds]
+        base = stretched_start(events["t"], fe.stretch)
+        starts = [min(base, int(targets[g].min())) if len(g) else -1 for g in gated]
         cfg = replace(self.cfg, t_scale_us=self.cfg.t_scale_us / fe.stretch)
-        start = min(stretched_start(events["t"], fe.stretch), int(targets[gated].min()))
-        second = self._second_look(events[start:], sensor_size, targets[gated] - start, calibration, cfg, matrix, timing)
-        mixed = combine(tuple(a[gated] for a in first), second, gate_weights(speed[gated], fe.speed_from, fe.speed_full))
-        for a, b in zip(first, mixed):  # the first look's arrays are this call's own
-            a[gated] = b
+        for start in sorted(set(starts) - {-1}):
+            group = [i for i, s in enumerate(starts) if s == start]
+            union = np.unique(np.concatenate([gated[i] for i in group]))
+            seconds = self._second_look(events[start:], sensor_size, targets[union] - start, calibration, cfg,
+                                        tuple(matrices[i] for i in group), timing)
+            for i, second in zip(group, seconds):
+                g = gated[i]
+                at = np.searchsorted(union, g)
+                mixed = combine(tuple(a[g] for a in looks[i]), tuple(a[at] for a in second),
+                                gate_weights(speeds[i][g], fe.speed_from, fe.speed_full))
+                for a, b in zip(looks[i], mixed):  # the looks' arrays are this call's own
+                    a[g] = b
         timing["fast_edges"] += time.perf_counter() - t0
-        return first
+        return looks
 
-    def _slow_edges(self, events, history, sensor_size, targets, calibration, first, matrix, timing):
-        """The look so far ``(nx, ny, uncertainty)`` with the direction of the time-compressed
-        look over the longer slice (``history`` + ``events``) mixed in where the gate opens
-        (:mod:`evseg.veckm_flow.slow_edges`); adds its seconds to ``timing``."""
+    def _slow_edges(self, events, history, sensor_size, targets, calibration, looks, matrices, timing):
+        """Each look's ``(nx, ny, uncertainty)`` so far with the direction of the
+        time-compressed look over the longer slice (``history`` + ``events``) mixed in where
+        its gate opens (:mod:`evseg.veckm_flow.slow_edges`); computed together for every look
+        (the longer slice does not depend on the gate), at the targets any look gates. Adds
+        its seconds to ``timing``."""
         se = self.slow_edges
         t0 = time.perf_counter()
-        w = gate(np.hypot(first[0], first[1]) / self.cfg.flow_unit_px_s, se.speed_full, se.speed_to)
-        gated = np.flatnonzero(w > 0)
-        if len(gated) == 0:
-            timing["slow_edges"] += time.perf_counter() - t0
-            return first
-        cfg = replace(self.cfg, t_scale_us=self.cfg.t_scale_us * se.compress)
-        older = history[compressed_start(history["t"], events["t"], se.compress):]
-        slice_ = np.concatenate([older, events]) if len(older) else events
-        second = self._second_look(slice_, sensor_size, targets[gated] + len(older), calibration, cfg, matrix, timing)
-        # Direction only: the speed stays the first look's (slow_edges docstring).
-        looks = tuple(a[gated] for a in first)
-        mixed = combine_directions(looks, second, w[gated])
-        if se.uncertainty == "combined":
-            mixed = (*mixed, combine(looks, second, w[gated])[2])
-        for a, b in zip(first, mixed):  # the first look's arrays are this call's own
-            a[gated] = b
+        weights = [gate(np.hypot(lk[0], lk[1]) / self.cfg.flow_unit_px_s, se.speed_full, se.speed_to) for lk in looks]
+        gated = [np.flatnonzero(w > 0) for w in weights]
+        union = np.unique(np.concatenate(gated))
+        if len(union):
+            cfg = replace(self.cfg, t_scale_us=self.cfg.t_scale_us * se.compress)
+            older = history[compressed_start(history["t"], events["t"], se.compress):]
+            slice_ = np.concatenate([older, events]) if len(older) else events
+            seconds = self._second_look(slice_, sensor_size, targets[union] + len(older), calibration, cfg,
+                                        matrices, timing)
+            for lk, w, g, second in zip(looks, weights, gated, seconds):
+                at = np.searchsorted(union, g)
+                old, new = tuple(a[g] for a in lk), tuple(a[at] for a in second)
+                # Direction only: the speed stays the first look's (slow_edges docstring).
+                mixed = combine_directions(old, new, w[g])
+                if se.uncertainty == "combined":
+                    mixed = (*mixed, combine(old, new, w[g])[2])
+                for a, b in zip(lk, mixed):  # the looks' arrays are this call's own
+                    a[g] = b
         timing["slow_edges"] += time.perf_counter() - t0
-        return first
+        return looks
 
-    def _second_look(self, events, sensor_size, targets, calibration, cfg: EncodingConfig, matrix, timing):
-        """``(nx, ny, uncertainty)`` (px/s, rad) of ``targets`` with the encoding ``cfg`` (another
-        time scale of the model's) and ``matrix``; adds its encoding and network seconds to ``timing``."""
+    def _second_look(self, events, sensor_size, targets, calibration, cfg: EncodingConfig, matrices, timing):
+        """Per matrix, ``(nx, ny, uncertainty)`` (px/s, rad) of ``targets`` with the encoding
+        ``cfg`` (the model's or another time scale of it); adds its encoding and network
+        seconds to ``timing``."""
         t0 = time.perf_counter()
-        feats = self.encode(events, sensor_size, targets, calibration, cfg, matrix)
+        feats = self.encode_looks(events, sensor_size, targets, calibration, cfg, matrices)
         t1 = time.perf_counter()
-        second = head_output_to_flow(self.predict(feats), cfg)  # px/s, like the first look
+        out = self.predict(feats.reshape(-1, feats.shape[-1])).reshape(len(feats), -1, 3)
         timing["encode"] += t1 - t0
         timing["network"] += time.perf_counter() - t1
-        return second
+        return [head_output_to_flow(o, cfg) for o in out]  # px/s, whatever the time scale

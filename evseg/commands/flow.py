@@ -44,7 +44,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "(README, Normal flow; up to 2.4x less time on slow scenes)")
     p.add_argument("--mirrors", type=int, choices=[1, 2, 4, 8], default=1,
                    help="average the model's flow over this many mirror images of each slice (README, "
-                        "Normal flow; 8: 9.8 instead of 11.5 deg median angular error on held-out scenes, at 8x the time)")
+                        "Normal flow; 8: 9.8 instead of 11.5 deg median angular error on held-out scenes, at ~5x the time)")
     p.add_argument("--calib", type=Path, default=None, help="calibration YAML (default: the file's own, if any)")
     p.add_argument("--window-ms", type=float, default=10.0, help="slice duration (ms): the targets of one slice")
     p.add_argument("--context-ms", type=float, default=20.0,

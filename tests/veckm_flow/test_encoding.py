@@ -356,3 +356,43 @@ def test_pyramid_config_and_phase_arguments_are_checked(make_slice):
     assert [p.shape for p in phases] == [(30, 40, 8), (15, 20, 8)]
     np.testing.assert_array_equal(encode_targets(ev, np.arange(10), (40, 30), cfg, phase_xy=phases),
                                   encode_targets(ev, np.arange(10), (40, 30), cfg))
+
+
+@pytest.mark.parametrize("calibrated,levels", [(False, 1), (True, 1), (False, 2)])
+def test_looks_encoded_together_equal_each_look_alone_bit_for_bit(make_slice, calibrated, levels):
+    # The mirror looks share each pixel's sum over its events; sharing it must not change a bit
+    # of any look's features (raw pixels, undistorted positions, a pyramid).
+    from evseg.veckm_flow.encoding import encode_targets_looks
+    from evseg.veckm_flow.mirrors import mirrored_encoding_matrix
+
+    cfg = EncodingConfig(d=8, window_px=3, polarity=True, pyramid_levels=levels)
+    ev = make_slice(3000, (40, 30), seed=4)
+    targets = np.arange(0, 3000, 7)
+    cal = None
+    if calibrated:
+        K = np.array([[30.0, 0, 20], [0, 30.0, 15], [0, 0, 1]])
+        cal = Calibration(K, np.array([-0.3, 0.1, 0.001, -0.001]), (40, 30))
+    mats = [mirrored_encoding_matrix(encoding_matrix(cfg), k) for k in range(8)]
+    together = encode_targets_looks(ev, targets, (40, 30), cfg, mats, calibration=cal)
+    assert together.shape == (8, len(targets), cfg.n_features) and together.dtype == np.float32
+    for k, m in enumerate(mats):
+        np.testing.assert_array_equal(together[k], encode_targets(ev, targets, (40, 30), cfg, cal, matrix=m))
+    assert not np.allclose(together[0], together[5], atol=1e-2)  # the looks are not one look copied
+
+
+def test_looks_must_differ_only_in_their_spatial_rows(make_slice):
+    from evseg.veckm_flow.encoding import encode_targets_looks
+
+    cfg = EncodingConfig(d=8, window_px=3, polarity=True)
+    ev = make_slice(500, (40, 30), seed=1)
+    a = encoding_matrix(cfg)
+    for row in (2, 3):  # time, polarity
+        b = a.copy()
+        b[row] *= 2.0
+        with pytest.raises(ConfigError, match="time .and polarity. rows"):
+            encode_targets_looks(ev, np.arange(5), (40, 30), cfg, [a, b])
+    with pytest.raises(ConfigError, match="at least one matrix"):
+        encode_targets_looks(ev, np.arange(5), (40, 30), cfg, [])
+    with pytest.raises(ConfigError, match="shape"):
+        encode_targets_looks(ev, np.arange(5), (40, 30), cfg, [a, a[:3]])
+    assert encode_targets_looks(ev, np.zeros(0, np.int64), (40, 30), cfg, [a, a]).shape == (2, 0, 17)

@@ -122,3 +122,14 @@ def test_pyramid_model_exports_and_runs_like_its_torch_head(tmp_path):
             nx, ny, _ = head_output_to_flow(out, cfg)
             np.testing.assert_allclose(flow.nx, nx, atol=1e-5 * cfg.flow_unit_px_s)
             np.testing.assert_allclose(flow.ny, ny, atol=1e-5 * cfg.flow_unit_px_s)
+
+
+def test_the_network_runs_in_chunks_with_the_same_output(random_onnx, monkeypatch):
+    from evseg.veckm_flow import inference
+
+    path, _, cfg = random_onnx
+    est = OnnxNormalFlow(path, threads=1)
+    feats = np.random.default_rng(0).standard_normal((1000, cfg.n_features)).astype(np.float32)
+    whole = est.predict(feats)
+    monkeypatch.setattr(inference, "PREDICT_ROWS", 300)  # 4 runs, the last of 100 rows
+    np.testing.assert_array_equal(est.predict(feats), whole)

@@ -169,3 +169,31 @@ def test_mirror_looks_handle_empty_slices_and_targets():
         assert len(f.index) == 0 and f.nx.dtype == np.float32 and f.uncertainty.dtype == np.float32
     f = est(ev, (8, 8))
     assert len(f.index) == 3 and np.all(np.isfinite(f.nx)) and np.all(f.uncertainty > 0)
+
+
+def test_looks_computed_together_equal_looks_computed_one_by_one():
+    # The estimator encodes and runs all mirror looks together, second looks included; each
+    # look's flow must be the one it gets alone, bit for bit: on a window with its context and
+    # history, and on a slice without context whose targets span it (the time-stretched look
+    # then starts at the earliest gated target, which differs between the looks).
+    ev, a, b, size, targets, _ = _window()
+    cut = np.searchsorted(ev["t"], 35_000)
+    cases = [lambda e: _flow(e, ev, a, b, size, targets),
+             lambda e: _call(e, ev[cut:], size, select_targets(ev[cut:], size, cell_px=2))]
+    for run in cases:
+        est = OnnxNormalFlow(threads=1, mirrors=8)
+        together, unc = run(est)
+        looks = []
+        for k in est.looks:
+            one = OnnxNormalFlow(threads=1)
+            one.looks = (k,)  # this look alone, mapped back
+            f, u = run(one)
+            looks.append((f[:, 0], f[:, 1], u))
+        nx, ny, u = combine_looks(looks)
+        np.testing.assert_array_equal(together, np.stack([nx, ny], 1).astype(np.float64))
+        np.testing.assert_array_equal(unc, u)
+
+
+def _call(est, ev, size, targets):
+    f = est(ev, size, targets)
+    return np.stack([f.nx, f.ny], 1).astype(np.float64), f.uncertainty
