@@ -548,9 +548,13 @@ def _encode_level(x, y, t, p, t0, span_us: int, targets: np.ndarray, size: tuple
     # order in which the pass completes their windows); ``order`` maps back.
     order, tx, ty, tdt, tpol, blk_start = _kernels.order_targets(
         targets, x, y, t, p, t0, cfg.polarity, width, height, nblk)
+    # The kernel indexes the looks' tables as one tuple, which must be of one array type
+    # (a caller's SpatialPhase may hold strided or float64 arrays; no copy when it does not).
+    rows = tuple(np.ascontiguousarray(ph.rows, np.float32) for ph in phases)
+    cols = tuple(np.ascontiguousarray(ph.cols, np.float32) for ph in phases)
     return _kernels.window_features(
-        start, sdt, spol, hi, lo, _LO_BITS, row_used, tuple(ph.rows for ph in phases),
-        tuple(ph.cols for ph in phases), cfg.window_px, nblk, tx, ty, tdt, tpol, order, blk_start,
+        start, sdt, spol, hi, lo, _LO_BITS, row_used, rows, cols, cfg.window_px, nblk,
+        tx, ty, tdt, tpol, order, blk_start,
     )
 
 

@@ -396,3 +396,21 @@ def test_looks_must_differ_only_in_their_spatial_rows(make_slice):
     with pytest.raises(ConfigError, match="shape"):
         encode_targets_looks(ev, np.arange(5), (40, 30), cfg, [a, a[:3]])
     assert encode_targets_looks(ev, np.zeros(0, np.int64), (40, 30), cfg, [a, a]).shape == (2, 0, 17)
+
+
+def test_looks_take_callers_phase_tables_of_any_layout(make_slice):
+    # A caller's SpatialPhase may hold strided arrays; the looks' tables are made uniform
+    # (the kernel reads them as one tuple) without changing the features.
+    from evseg.veckm_flow.encoding import SpatialPhase, encode_targets_looks, spatial_phase_factors
+
+    cfg = EncodingConfig(d=8, window_px=3, polarity=True)
+    ev = make_slice(800, (40, 30), seed=3)
+    targets = np.arange(0, 800, 9)
+    f = spatial_phase_factors(cfg, (40, 30))
+    strided = SpatialPhase(rows=np.repeat(f.rows, 2, axis=0)[::2], cols=f.cols)
+    assert not strided.rows.flags.c_contiguous
+    a = encoding_matrix(cfg)
+    out = encode_targets_looks(ev, targets, (40, 30), cfg, [a, a], phases=[(f,), (strided,)])
+    ref = encode_targets(ev, targets, (40, 30), cfg)
+    np.testing.assert_array_equal(out[0], ref)
+    np.testing.assert_array_equal(out[1], ref)
