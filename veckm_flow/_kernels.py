@@ -10,9 +10,10 @@ Complex values are stored planar, ``[..., 0, m]`` real and ``[..., 1, m]`` imagi
 LLVM vectorises (numba's interleaved complex64 arithmetic does not, and ran ~4x slower).
 
 The per-pixel complex field is never stored: events are sorted by pixel (counting sort, O(N))
-and each pixel's value is computed when the pass reaches it. Only the box sums of the last
-2k+1 rows of a block of columns are kept (a ring per thread, a few hundred KB), and each
-target's features are taken from that ring as soon as its window is complete.
+and each pixel's value is computed when the pass reaches it. Only the current row's box sums
+of a block of columns are kept (per thread, 25 KB per look); each is added at once to the
+window sums of the targets whose window holds that row, and a target's features are finished
+as soon as its window is complete.
 """
 
 from __future__ import annotations
@@ -237,36 +238,35 @@ def _row_box(start, sdt, spol, hi, lo, lo_bits, rows, cols, k, yy, x0, x1, W, ri
 
 
 @njit(cache=True, fastmath=_FASTMATH, inline="always")
-def _emit(r, o, xx, yy, y_lo, y_hi, x0, row_sums, row_cnt, tdt, tpol, rows, cols, hi, lo, lo_bits, out, acc):  # pragma: no cover
-    """Features of target ``r`` (pixel ``(xx, yy)``) into ``out[look, o]`` for every look: the
-    sum of the row box sums of rows ``y_lo..y_hi`` (held in the row ring), times ``conj(phase *
-    hi * lo)`` of the target itself, rescaled to norm sqrt(d), then ``log(1 + n)``. ``acc`` is
-    a (2, d) scratch of the calling thread: summing there rather than in ``out`` measured ~2-4 %
-    faster (one thread)."""
+def _gather(col, row_sums, row_cnt, acc, cnt, a):  # pragma: no cover
+    """Adds the row box sums at block column ``col`` of every look to a target's window sums
+    ``acc[a]`` (looks, planar) and its event count to ``cnt[a]``."""
+    cnt[a] += row_cnt[col]
+    for look in range(row_sums.shape[0]):
+        for m in range(row_sums.shape[3]):
+            acc[a, look, 0, m] += row_sums[look, col, 0, m]
+            acc[a, look, 1, m] += row_sums[look, col, 1, m]
+
+
+@njit(cache=True, fastmath=_FASTMATH, inline="always")
+def _emit(r, o, xx, yy, g, cnt, tdt, tpol, rows, cols, hi, lo, lo_bits, out, tmp):  # pragma: no cover
+    """Features of target ``r`` (pixel ``(xx, yy)``) into ``out[look, o]`` for every look: its
+    window sums ``g`` (looks, planar; overwritten) times ``conj(phase * hi * lo)`` of the target
+    itself, rescaled to norm sqrt(d), then ``log(1 + cnt)``."""
     d = hi.shape[2]
-    nrow = row_sums.shape[0]
     mask = (1 << lo_bits) - 1
-    c = xx - x0
-    cnt = 0
-    for row in range(y_lo, y_hi + 1):
-        cnt += row_cnt[row % nrow, c]
     h = tdt[r] >> lo_bits
     l = tdt[r] & mask
     q = tpol[r]
     for look in range(len(rows)):
         for m in range(d):
-            acc[0, m] = 0.0
-            acc[1, m] = 0.0
-        for row in range(y_lo, y_hi + 1):
-            sl = row % nrow
-            for m in range(d):
-                acc[0, m] += row_sums[sl, look, c, 0, m]
-                acc[1, m] += row_sums[sl, look, c, 1, m]
+            tmp[0, m] = g[look, 0, m]
+            tmp[1, m] = g[look, 1, m]
         s = np.float32(0.0)
         ra, ca = _pixel_phase(rows, cols, look, yy, xx)
         for m in range(d):
-            gr = acc[0, m]
-            gi = acc[1, m]
+            gr = tmp[0, m]
+            gi = tmp[1, m]
             tr = hi[h, 0, m] * lo[q, l, 0, m] - hi[h, 1, m] * lo[q, l, 1, m]
             ti = hi[h, 0, m] * lo[q, l, 1, m] + hi[h, 1, m] * lo[q, l, 0, m]
             sr = ra[0, m] * ca[0, m] - ra[1, m] * ca[1, m]
@@ -275,14 +275,26 @@ def _emit(r, o, xx, yy, y_lo, y_hi, x0, row_sums, row_cnt, tdt, tpol, rows, cols
             pi = -(sr * ti + si * tr)
             vr = gr * pr - gi * pi
             vi = gr * pi + gi * pr
-            acc[0, m] = vr
-            acc[1, m] = vi
+            tmp[0, m] = vr
+            tmp[1, m] = vi
             s += vr * vr + vi * vi
         f = np.float32(np.sqrt(np.float32(d))) / max(np.sqrt(s), np.float32(1e-12))
         for m in range(d):
-            out[look, o, m] = acc[0, m] * f
-            out[look, o, d + m] = acc[1, m] * f
+            out[look, o, m] = tmp[0, m] * f
+            out[look, o, d + m] = tmp[1, m] * f
         out[look, o, 2 * d] = np.log1p(np.float32(cnt))
+
+
+@njit(cache=True, nogil=True)
+def _most_active(ty, r0, r1, k):  # pragma: no cover
+    """Most targets of ``ty[r0:r1]`` (sorted) whose windows ``ty +- k`` share a row."""
+    most = 1
+    j = r0
+    for i in range(r0, r1):
+        while ty[j] < ty[i] - 2 * k:
+            j += 1
+        most = max(most, i - j + 1)
+    return most
 
 
 @njit(cache=True, parallel=True, fastmath=_FASTMATH, nogil=True)
@@ -290,19 +302,20 @@ def window_features(start, sdt, spol, hi, lo, lo_bits, row_used, rows, cols, k, 
                     tx, ty, tdt, tpol, slot, blk_start):  # pragma: no cover
     """Features (L, T, 2d+1) float32 of the targets in L looks: for each, the sum over its
     (2k+1)^2 pixel window of ``phase_look * sum_events hi * lo``, with its own phase removed;
-    row ``slot[r]`` holds target r. ``rows`` ``(L, H, W or 1, 2, d)`` and ``cols`` ``(L, W, 1,
-    2, d)`` are the looks' spatial phases (``encoding.SpatialPhase`` stacked); the looks share
-    the time and polarity phases ``hi``, ``lo`` (mirror images of the slice,
-    ``mirrors.py``), so each pixel's sum over its events, most of the work, is computed once
-    for all of them.
+    row ``slot[r]`` holds target r. ``rows`` and ``cols`` are tuples of the L looks' spatial
+    phase tables (``encoding.SpatialPhase``); the looks share the time and polarity phases
+    ``hi``, ``lo`` (mirror images of the slice, ``mirrors.py``), so each pixel's sum over its
+    events, most of the work, is computed once for all of them.
 
     One pass down the rows per block of columns (threads own blocks; block c spans columns
-    ``c W // nblk`` to ``(c + 1) W // nblk``). Each row's box sums along x go into a ring of
-    the last 2k+1 rows; a target's window is complete when the pass reaches row ``ty + k``,
-    and its features are summed from the ring right then. So no H x W x d grid of running sums
-    is written and read back (23 MB per slice at 346x260, d = 32; that traffic was most of the
-    encoding time), and each window sum is a fresh sum of 2k+1 rows rather than a difference
-    of two long running sums (less float32 rounding). Targets come grouped by block
+    ``c W // nblk`` to ``(c + 1) W // nblk``). A row's box sums along x are added to the
+    window sums of the targets whose window holds the row (rows ``ty - k .. ty + k``, in
+    increasing order: each window sum is a fresh sum of 2k+1 row sums, not a difference of
+    two long running sums, so float32 rounding stays small), and a target's features are
+    finished when the pass leaves its window. So no H x W x d grid of running sums is written
+    and read back (23 MB per slice at 346x260, d = 32), only one row of box sums is held at a
+    time (8 looks: 200 KB, within a core's cache; a ring of the last 2k+1 rows outgrew it),
+    and rows no target's window reaches are skipped. Targets come grouped by block
     (``blk_start``) and sorted by row within a block.
     """
     n_looks = len(rows)
@@ -311,35 +324,47 @@ def window_features(start, sdt, spol, hi, lo, lo_bits, row_used, rows, cols, k, 
     d = hi.shape[2]
     nt = tx.shape[0]
     out = np.empty((n_looks, nt, 2 * d + 1), np.float32)
-    nrow = 2 * k + 1
     for c in prange(nblk):
         x0 = c * W // nblk
         x1 = (c + 1) * W // nblk
         bw = x1 - x0
+        r_begin = blk_start[c]
+        r_end = blk_start[c + 1]
+        if r_begin == r_end:
+            continue
         box = np.empty((n_looks, 2, d), np.float32)
         ev = np.empty((2, d), np.float32)
-        acc = np.empty((2, d), np.float32)
+        tmp = np.empty((2, d), np.float32)
         ring = np.empty((n_looks, 2 * k + 2, 2, d), np.float32)
-        row_sums = np.zeros((nrow, n_looks, bw, 2, d), np.float32)
-        row_cnt = np.zeros((nrow, bw), np.int64)
-        r = blk_start[c]
-        r_end = blk_start[c + 1]
+        row_sums = np.empty((n_looks, bw, 2, d), np.float32)
+        row_cnt = np.empty(bw, np.int64)
+        # Window sums of the targets whose window the pass is in: a contiguous run of the
+        # row-sorted targets, kept in a ring of slots r % cap.
+        cap = _most_active(ty, r_begin, r_end, k)
+        acc = np.empty((cap, n_looks, 2, d), np.float32)
+        cnt = np.empty(cap, np.int64)
+        r_done = r_begin  # targets before it are finished
+        r_open = r_begin  # targets before it have their window open
         for yy in range(H):
-            sl = yy % nrow
-            if row_used[yy]:
+            while r_open < r_end and ty[r_open] - k <= yy:
+                acc[r_open % cap] = 0.0
+                cnt[r_open % cap] = 0
+                r_open += 1
+            if row_used[yy] and r_done < r_open:
                 _row_box(start, sdt, spol, hi, lo, lo_bits, rows, cols, k, yy, x0, x1, W, ring, box, ev,
-                         row_sums[sl], row_cnt[sl])
-            else:
-                row_sums[sl] = 0.0
-                row_cnt[sl] = 0
-            while r < r_end and ty[r] + k <= yy:
-                _emit(r, slot[r], tx[r], ty[r], max(ty[r] - k, 0), yy, x0, row_sums, row_cnt,
-                      tdt, tpol, rows, cols, hi, lo, lo_bits, out, acc)
-                r += 1
-        while r < r_end:  # windows cut by the bottom edge: rows ty - k .. H - 1
-            _emit(r, slot[r], tx[r], ty[r], max(ty[r] - k, 0), H - 1, x0, row_sums, row_cnt,
-                  tdt, tpol, rows, cols, hi, lo, lo_bits, out, acc)
-            r += 1
+                         row_sums, row_cnt)
+                for r in range(r_done, r_open):
+                    _gather(tx[r] - x0, row_sums, row_cnt, acc, cnt, r % cap)
+            while r_done < r_end and ty[r_done] + k <= yy:
+                _emit(r_done, slot[r_done], tx[r_done], ty[r_done], acc[r_done % cap], cnt[r_done % cap],
+                      tdt, tpol, rows, cols, hi, lo, lo_bits, out, tmp)
+                r_done += 1
+            if r_done == r_end:
+                break
+        while r_done < r_end:  # windows cut by the bottom edge
+            _emit(r_done, slot[r_done], tx[r_done], ty[r_done], acc[r_done % cap], cnt[r_done % cap],
+                  tdt, tpol, rows, cols, hi, lo, lo_bits, out, tmp)
+            r_done += 1
     return out
 
 

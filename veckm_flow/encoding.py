@@ -12,11 +12,10 @@ factorises into ``exp(-i A^T p_i) * sum_j exp(i A^T p_j)``: the second factor is
 per-pixel complex field ``F(x, y) = sum_{j at (x, y)} exp(i A^T p_j)`` (method.md section 3).
 The events are counting-sorted by pixel (O(N)); one pass down the pixel grid then slides a box
 along each row (a pixel's field value is computed from its events when it enters the box) and
-keeps the row-box sums of the last ``2k+1`` rows in a ring; when the pass reaches a target's
-last window row, the target's window sum is the sum of those ``2k+1`` row-box sums at its
-column. So a target costs O(k d) and the whole encoding O(N d + W H d + T k d): linear in
-events, no N x N adjacency, no H x W x d buffer (compiled loops in
-:mod:`evseg.veckm_flow._kernels`).
+adds the row-box sum at a target's column to that target's window sum for each of its
+``2k+1`` window rows, in order; rows no target's window reaches are skipped. So a target
+costs O(k d) and the whole encoding O(N d + W H d + T k d): linear in events, no N x N
+adjacency, no H x W x d buffer (compiled loops in :mod:`evseg.veckm_flow._kernels`).
 
 Precision: float32 (complex64). Each window sum is a fresh sum of ``2k+1`` row-box sums
 (each bounded by the events of a ``2k+1`` pixel wide strip), so float32 rounding stays far
