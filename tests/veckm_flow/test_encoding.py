@@ -41,6 +41,25 @@ def test_windows_across_column_blocks_and_sensor_edges_match_direct_sum(make_sli
     np.testing.assert_allclose(fast, ref, atol=ATOL)
 
 
+
+def test_sparse_targets_skip_rows_and_blocks_and_still_match_direct_sum(make_slice):
+    # The pass adds a row's box sums only to the windows that hold the row, skips rows no
+    # window reaches and blocks without targets: a few targets in a few rows of one block,
+    # with windows overlapping (same and neighbouring rows), at the top and bottom edges
+    # and many rows apart, must still get their exact window sums.
+    w, h = 250, 60
+    cfg = EncodingConfig(d=8, window_px=3, seed=4)
+    ev = make_slice(8000, (w, h), seed=7)
+    x, y = ev["x"].astype(int), ev["y"].astype(int)
+    left = x < 90  # the first column block only
+    picks = []
+    for row in (0, 1, 4, 30, 31, 33, 58, 59):
+        picks += list(np.flatnonzero(left & (y == row))[:3])
+    targets = np.array(sorted(picks))
+    assert len(targets) >= 20 and len(np.unique(y[targets])) == 8
+    fast = encode_targets(ev, targets, (w, h), cfg)
+    np.testing.assert_allclose(fast, encode_targets_reference(ev, targets, (w, h), cfg), atol=ATOL)
+
 def test_features_have_vecKM_norm_and_count(make_slice):
     cfg = EncodingConfig(d=16, window_px=2)
     ev = make_slice(300, (20, 10))
