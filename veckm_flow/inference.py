@@ -232,7 +232,7 @@ class OnnxNormalFlow:
         """Per encoding matrix (mirror look), ``(nx, ny, uncertainty)`` (px/s, rad; undistorted
         px with a calibration) of the first look and the second looks where their gates open,
         all looks computed together; adds its seconds to ``timing``."""
-        first = self._second_look(events, sensor_size, targets, calibration, self.cfg, matrices, timing)
+        first = self._encode_and_predict(events, sensor_size, targets, calibration, self.cfg, matrices, timing)
         if self.fast_edges is not None and len(targets):
             first = self._fast_edges(events, sensor_size, targets, calibration, first, matrices, timing)
         if self.slow_edges is not None and history is not None and len(history) and len(targets):
@@ -255,7 +255,7 @@ class OnnxNormalFlow:
         for start in sorted(set(starts) - {-1}):
             group = [i for i, s in enumerate(starts) if s == start]
             union = np.unique(np.concatenate([gated[i] for i in group]))
-            seconds = self._second_look(events[start:], sensor_size, targets[union] - start, calibration, cfg,
+            seconds = self._encode_and_predict(events[start:], sensor_size, targets[union] - start, calibration, cfg,
                                         tuple(matrices[i] for i in group), timing)
             for i, second in zip(group, seconds):
                 g = gated[i]
@@ -282,7 +282,7 @@ class OnnxNormalFlow:
             cfg = replace(self.cfg, t_scale_us=self.cfg.t_scale_us * se.compress)
             older = history[compressed_start(history["t"], events["t"], se.compress):]
             slice_ = np.concatenate([older, events]) if len(older) else events
-            seconds = self._second_look(slice_, sensor_size, targets[union] + len(older), calibration, cfg,
+            seconds = self._encode_and_predict(slice_, sensor_size, targets[union] + len(older), calibration, cfg,
                                         matrices, timing)
             for lk, w, g, second in zip(looks, weights, gated, seconds):
                 at = np.searchsorted(union, g)
@@ -296,7 +296,7 @@ class OnnxNormalFlow:
         timing["slow_edges"] += time.perf_counter() - t0
         return looks
 
-    def _second_look(self, events, sensor_size, targets, calibration, cfg: EncodingConfig, matrices, timing):
+    def _encode_and_predict(self, events, sensor_size, targets, calibration, cfg: EncodingConfig, matrices, timing):
         """Per matrix, ``(nx, ny, uncertainty)`` (px/s, rad) of ``targets`` with the encoding
         ``cfg`` (the model's or another time scale of it); adds its encoding and network
         seconds to ``timing``."""
