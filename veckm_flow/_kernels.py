@@ -251,8 +251,11 @@ def _gather(col, row_sums, row_cnt, acc, cnt, a):  # pragma: no cover
 @njit(cache=True, fastmath=_FASTMATH, inline="always")
 def _emit(r, o, xx, yy, g, cnt, tdt, tpol, rows, cols, hi, lo, lo_bits, out, tmp):  # pragma: no cover
     """Features of target ``r`` (pixel ``(xx, yy)``) into ``out[look, o]`` for every look: its
-    window sums ``g`` (looks, planar; overwritten) times ``conj(phase * hi * lo)`` of the target
-    itself, rescaled to norm sqrt(d), then ``log(1 + cnt)``."""
+    window sums ``g`` (looks, planar) times ``conj(phase * hi * lo)`` of the target itself,
+    rescaled to norm sqrt(d), then ``log(1 + cnt)``. Each look is computed in the (2, d)
+    scratch ``tmp``: working on ``g``'s strided rows directly let LLVM round the norm's sum
+    differently for different look counts (1 ulp), and a look's features must not depend on
+    how many looks are computed with it."""
     d = hi.shape[2]
     mask = (1 << lo_bits) - 1
     h = tdt[r] >> lo_bits
