@@ -16,7 +16,9 @@ the stage figures add up to more than it. The 1 M events/s stream is also timed 
 worker on a thread of the same process, with ``overlap`` off (one window after the other),
 where ``total`` is also the time one window takes from its events to its labels, and with the
 learned flow's slow-edge look (``PipelineConfig.slow_edges``, ``evseg segment --slow-edges``)
-and with its 8 mirror looks (``PipelineConfig.mirrors``, ``evseg segment --mirrors 8``).
+and with its 8 mirror looks (``PipelineConfig.mirrors``, ``evseg segment --mirrors 8``), and
+with 8 looks inside the tracked boxes only (``PipelineConfig.tracked_mirrors``, ``evseg segment
+--tracked-mirrors 8``, with and without a budget of 500 targets per window).
 """
 
 from __future__ import annotations
@@ -129,6 +131,11 @@ def benchmark(repeats: int = 3, quick: bool = False) -> list[dict]:
                 row = {"input": f"simulated 346x260, {rec.stream.rate_ev_s / 1e6:.2f} M ev/s, --mirrors 8"}
                 row.update(time_pipeline(path, repeats, mirrors=8))
                 rows.append(row)
+                for most in (None, 500):
+                    row = {"input": f"simulated 346x260, {rec.stream.rate_ev_s / 1e6:.2f} M ev/s, --tracked-mirrors 8"
+                                    + ("" if most is None else f" --tracked-max-targets {most}")}
+                    row.update(time_pipeline(path, repeats, tracked_mirrors=8, tracked_max_targets=most))
+                    rows.append(row)
     if not quick:
         rows += _real_recordings(repeats)
     return rows

@@ -111,15 +111,15 @@ def evaluate_pipeline(quick: bool = False, flow: str = "learned", seeds=None, **
 
 
 def evaluate_pipeline_and_oracle(quick: bool = False, model_path: str | None = None,
-                                 slow_edges: bool = False, mirrors: int = 1) -> list[dict]:
+                                 slow_edges: bool = False, mirrors: int = 1, tracked_mirrors: int = 1) -> list[dict]:
     """``evseg eval pipeline``: :func:`evaluate_pipeline` with the learned flow (``model_path``,
     default the shipped model; every scene's row and the pooled rows), then the pooled rows of
     the same scenes run through the same pipeline with the simulator's ground-truth normal flow
     (``flow="precomputed"``), which tell what the flow's errors cost from what the segmentation
-    misses by itself. ``slow_edges``, ``mirrors``: :class:`~evseg.pipeline.PipelineConfig`'s,
-    for the learned flow."""
+    misses by itself. ``slow_edges``, ``mirrors``, ``tracked_mirrors``:
+    :class:`~evseg.pipeline.PipelineConfig`'s, for the learned flow."""
     rows = evaluate_pipeline(quick, model_path=None if model_path is None else str(model_path), slow_edges=slow_edges,
-                             mirrors=mirrors)
+                             mirrors=mirrors, tracked_mirrors=tracked_mirrors)
     for r in evaluate_pipeline(quick, flow="precomputed"):
         if r["scene"].startswith("**"):
             rows.append({**r, "scene": r["scene"][:-2] + ", ground-truth flow**"})
@@ -139,12 +139,14 @@ def _row(name: str, s, ae: float, ms: float) -> dict:
     }
 
 
-def evaluate_static_camera(quick: bool = False, slow_edges: bool = False, mirrors: int = 1) -> list[dict]:
+def evaluate_static_camera(quick: bool = False, slow_edges: bool = False, mirrors: int = 1,
+                           tracked_mirrors: int = 1) -> list[dict]:
     """Simulated scenes from a camera that does not move (scene preset ``static_camera``):
     pooled scores with the default settings, which take the largest motion for the background,
     and with the ``static_camera`` segmentation preset, which keeps zero motion as the
     background; each with the simulator's ground-truth normal flow and with the shipped
-    learned flow (``slow_edges``: with the slow-edge look; ``mirrors``: its mirror looks). Full: 8 seeds (1000-1007) of 300 ms;
+    learned flow (``slow_edges``: with the slow-edge look; ``mirrors``: its mirror looks;
+    ``tracked_mirrors``: its mirror looks in the tracked boxes). Full: 8 seeds (1000-1007) of 300 ms;
     quick: 2 seeds of 100 ms."""
     from evseg.pipeline import PipelineConfig
     from evseg.segmentation import SegmentationConfig, load_segmentation_config
@@ -159,7 +161,7 @@ def evaluate_static_camera(quick: bool = False, slow_edges: bool = False, mirror
         for flow in ("precomputed", "learned"):
             for name, seg in settings.items():
                 ev = evaluate_recording(rec, PipelineConfig(flow=flow, segmentation=seg, slow_edges=slow_edges,
-                                                            mirrors=mirrors))
+                                                            mirrors=mirrors, tracked_mirrors=tracked_mirrors))
                 scores.setdefault((flow, name), []).extend(ev.scores)
     rows = []
     for (flow, name), sc in scores.items():

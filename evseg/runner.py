@@ -41,6 +41,8 @@ class SegmentJob:
     fast_edges: bool = True
     slow_edges: bool = False
     mirrors: int = 1
+    tracked_mirrors: int = 1
+    tracked_max_targets: int | None = None
     masks: bool = False
     video: Path | None = None
     frames: Path | None = None
@@ -86,6 +88,8 @@ def build_pipeline_config(job: SegmentJob):
         fast_edges=job.fast_edges,
         slow_edges=job.slow_edges,
         mirrors=job.mirrors,
+        tracked_mirrors=job.tracked_mirrors,
+        tracked_max_targets=job.tracked_max_targets,
         segmentation=seg,
     )
 

@@ -124,6 +124,20 @@ def test_mirrors_option_reaches_the_flow_evaluations(fake_evaluations, tmp_path,
     assert "invalid choice: 3" in capsys.readouterr().err
 
 
+def test_tracked_mirrors_option_reaches_the_pipeline_evaluations(fake_evaluations, tmp_path, capsys):
+    """`evseg eval pipeline|pipeline-real|static --tracked-mirrors N` runs the pipeline with N
+    looks in the tracked boxes; the flow targets, which have no tracks, refuse it."""
+    seen = fake_evaluations
+    for target in ("pipeline", "pipeline-real", "static"):
+        assert main(["eval", target, "--quick", "--tracked-mirrors", "8", "--out", str(tmp_path / "t.md")]) == 0
+        assert seen[target] == {"tracked_mirrors": 8}
+    capsys.readouterr()
+    assert main(["eval", "flow", "--tracked-mirrors", "8"]) == 2
+    assert capsys.readouterr().err.strip() == (
+        "evseg eval: error: --tracked-mirrors applies to pipeline, pipeline-real, static, not to 'flow' "
+        "(it has no object tracks)")
+
+
 def test_model_option_names_a_missing_file_before_the_run(tmp_path, capsys):
     missing = tmp_path / "missing.onnx"
     assert main(["bench", "flow", "--model", str(missing)]) == 2

@@ -2,6 +2,8 @@
 
 import re
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -319,6 +321,80 @@ def test_mirrors_give_the_flow_command_s_flows_in_the_pipeline_and_segment(sim, 
     assert "mirrors: 4" in str(np.load(res)["config"])
 
 
+def test_tracked_mirrors_give_the_boxes_targets_their_8_looks(short_stream):
+    """`tracked_mirrors=8`: a target inside a box the tracks predicted (two windows ahead, grown
+    by the margin) gets exactly the flow of 8 mirror looks, every other target exactly the flow
+    of one look; windows 0 and 1 have no such boxes yet."""
+    from evseg.veckm_flow import select_targets
+
+    sensor = short_stream.sensor_size
+    one, eight = ([r.flow for r in MotionSegmentationPipeline(PipelineConfig(mirrors=m, overlap=False),
+                                                              sensor_size=sensor).run(short_stream)]
+                  for m in (1, 8))
+    pipe = MotionSegmentationPipeline(PipelineConfig(tracked_mirrors=8, overlap=False), sensor_size=sensor)
+    boxes_seen = []
+    flow_fn = pipe._flow_fn
+    pipe._flow_fn = lambda ev, size, kept, t0, boxes=None: (boxes_seen.append(boxes), flow_fn(ev, size, kept, t0, boxes))[1]
+    results = list(pipe.run(short_stream))
+    assert boxes_seen[0] is None and boxes_seen[1] is None
+    n_tracked = 0
+    for k, res in enumerate(results):
+        targets = select_targets(res.events, sensor, cell_px=2)
+        x, y = res.events["x"][targets], res.events["y"][targets]
+        inside = np.zeros(len(targets), dtype=bool)
+        for x0, y0, x1, y1 in (boxes_seen[k] if boxes_seen[k] is not None else []):
+            inside |= (x >= x0 - 8) & (x <= x1 + 8) & (y >= y0 - 8) & (y <= y1 + 8)
+        np.testing.assert_array_equal(res.flow_index, targets)  # all flows finite here
+        np.testing.assert_array_equal(res.flow[inside], eight[k][inside])
+        np.testing.assert_array_equal(res.flow[~inside], one[k][~inside])
+        n_tracked += int(inside.sum())
+    assert n_tracked > 20  # the scene's ball is tracked from window 0 on
+    # The boxes of window t come from window t - 2's objects, moved on.
+    for k in range(2, len(results)):
+        if boxes_seen[k] is not None and len(boxes_seen[k]):
+            assert results[k - 2].boxes
+
+
+def test_tracked_max_targets_takes_the_smallest_boxes_whole(short_stream):
+    """The budget: boxes smallest first, each whole or not at all, never more targets than it."""
+    from evseg.veckm_flow import select_targets
+
+    ev = short_stream.events[:3000]
+    pipe = MotionSegmentationPipeline(PipelineConfig(tracked_mirrors=8, tracked_margin_px=0),
+                                      sensor_size=short_stream.sensor_size)
+    targets = select_targets(ev, short_stream.sensor_size, cell_px=2)
+    x, y = ev["x"][targets], ev["y"][targets]
+    boxes = np.array([[0, 0, 99, 99], [10, 10, 19, 19], [50, 50, 69, 69]], dtype=np.float64)
+    def inside(b):
+        return (x >= b[0]) & (x <= b[2]) & (y >= b[1]) & (y <= b[3])
+    small, mid, big = inside(boxes[1]), inside(boxes[2]), inside(boxes[0])
+    assert 0 < small.sum() < mid.sum() < big.sum()  # the events cover all three boxes
+    np.testing.assert_array_equal(pipe._in_tracked_boxes(ev, targets, boxes), big | small | mid)
+    for budget, expect in ((int(small.sum()), small), (int((small | mid).sum()), small | mid),
+                           (int((small | mid).sum()) + 1, small | mid), (int(small.sum()) - 1, small & False)):
+        pipe.config = replace(pipe.config, tracked_max_targets=budget)
+        np.testing.assert_array_equal(pipe._in_tracked_boxes(ev, targets, boxes), expect)
+
+
+def test_segment_tracked_mirrors_records_the_setting(sim, tmp_path):
+    rec, d = sim
+    res = tmp_path / "r.npz"
+    assert main(["segment", str(d / "sim.npz"), "--out", str(res), "--tracked-mirrors", "8",
+                 "--tracked-max-targets", "300", "--no-progress", "--worker", "thread"]) == 0
+    config = str(np.load(res)["config"])
+    assert "tracked_mirrors: 8" in config and "tracked_max_targets: 300" in config
+
+
+@pytest.mark.parametrize("field, bad, match", [
+    ("tracked_max_targets", -5, r"pipeline.tracked_max_targets must be a non-negative integer or null, got -5"),
+    ("tracked_mirrors", 3, r"pipeline.tracked_mirrors must be one of \[1, 2, 4, 8\], got 3"),
+    ("tracked_margin_px", -1, r"pipeline.tracked_margin_px must be a non-negative integer \(px\), got -1"),
+    ("tracked_margin_px", 2.5, r"pipeline.tracked_margin_px must be a non-negative integer \(px\), got 2.5")])
+def test_bad_tracked_mirrors_settings_are_config_errors(field, bad, match):
+    with pytest.raises(ConfigError, match=match):
+        PipelineConfig(**{field: bad})
+
+
 @pytest.mark.parametrize("bad", [3, 0, True, "4", 2.0])
 def test_bad_mirrors_setting_is_a_config_error(bad):
     with pytest.raises(ConfigError, match=r"pipeline.mirrors must be one of \[1, 2, 4, 8\]"):
@@ -401,14 +477,17 @@ def short_stream():
     return simulate(load_scene_preset("eed_like"), seed=1002, duration_us=50_000).stream
 
 
-@pytest.mark.parametrize("flow, worker, stride_us", [("learned", "thread", None), ("planefit", "thread", None),
-                                                     ("learned", "process", None), ("learned", "process", 5_000)])
-def test_overlapped_flow_gives_the_sequential_results(short_stream, flow, worker, stride_us):
+@pytest.mark.parametrize("flow, worker, stride_us, tracked_mirrors", [
+    ("learned", "thread", None, 1), ("planefit", "thread", None, 1), ("learned", "process", None, 1),
+    ("learned", "process", 5_000, 1), ("learned", "thread", None, 8), ("learned", "process", None, 8)])
+def test_overlapped_flow_gives_the_sequential_results(short_stream, flow, worker, stride_us, tracked_mirrors):
     """Same labels and flows with the next window prepared on a thread or in the worker process
-    (which keeps its own copy of the flow's context events, also with overlapping windows)."""
+    (which keeps its own copy of the flow's context events, also with overlapping windows), also
+    with more mirror looks in the tracked boxes (which the worker gets with each window)."""
     runs = {}
     for overlap in (False, True):
-        cfg = PipelineConfig(flow=flow, overlap=overlap, threads=1, worker=worker, stride_us=stride_us)
+        cfg = PipelineConfig(flow=flow, overlap=overlap, threads=1, worker=worker, stride_us=stride_us,
+                             tracked_mirrors=tracked_mirrors)
         with MotionSegmentationPipeline(cfg, sensor_size=short_stream.sensor_size) as pipe:
             runs[overlap] = list(pipe.run(short_stream))
     assert len(runs[True]) == len(runs[False]) == (5 if stride_us is None else 10)

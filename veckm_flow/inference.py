@@ -14,6 +14,8 @@ The ONNX file (written by :func:`evseg.export.export_onnx`) holds the head, one 
 
 from __future__ import annotations
 
+import copy
+
 import json
 import time
 from dataclasses import replace
@@ -138,6 +140,14 @@ class OnnxNormalFlow:
         self.mirrors = int(mirrors)
         self._phase_cache: dict = {}
         self.last_timing_s: dict[str, float] = {}
+
+    def with_mirrors(self, mirrors: int) -> "OnnxNormalFlow":
+        """This estimator with ``mirrors`` mirror looks instead (1, 2, 4 or 8), sharing its model
+        session, second looks and cached phase tables (no second copy of the model)."""
+        looks = mirror_looks(mirrors)
+        other = copy.copy(self)
+        other.looks, other.mirrors, other.last_timing_s = looks, int(mirrors), {}
+        return other
 
     def _phase(self, sensor_size: tuple[int, int], calibration: "Calibration | None",
                matrix: np.ndarray) -> tuple[SpatialPhase, ...]:

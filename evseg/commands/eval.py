@@ -33,6 +33,9 @@ MODEL_TARGETS = ("flow", "flow-real", "pipeline")
 # Targets whose function takes ``mirrors`` (the learned flow's mirror looks, ``evseg flow --mirrors``).
 MIRRORS_TARGETS = ("flow", "flow-real", "pipeline", "pipeline-real", "static")
 
+# Targets whose function takes ``tracked_mirrors`` (PipelineConfig's, ``evseg segment --tracked-mirrors``).
+TRACKED_MIRRORS_TARGETS = ("pipeline", "pipeline-real", "static")
+
 # Targets whose function takes ``slow_edges`` (the pipeline's learned flow with the slow-edge look).
 SLOW_EDGES_TARGETS = ("pipeline", "pipeline-real", "static")
 
@@ -49,6 +52,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mirrors", type=int, choices=[1, 2, 4, 8], default=1,
                    help="the learned flow averaged over this many mirror images of each slice (evseg flow "
                         f"--mirrors); targets: {', '.join(MIRRORS_TARGETS)}")
+    p.add_argument("--tracked-mirrors", type=int, choices=[1, 2, 4, 8], default=1,
+                   help="the pipeline's learned flow with this many mirror looks inside the boxes the object "
+                        f"tracks predict (evseg segment --tracked-mirrors); targets: {', '.join(TRACKED_MIRRORS_TARGETS)}")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -60,6 +66,9 @@ def run(args: argparse.Namespace) -> int:
     if args.mirrors != 1:
         options["mirrors"] = _only_for(args.target, "--mirrors", MIRRORS_TARGETS, args.mirrors,
                                        "it evaluates ground-truth flow")
+    if args.tracked_mirrors != 1:
+        options["tracked_mirrors"] = _only_for(args.target, "--tracked-mirrors", TRACKED_MIRRORS_TARGETS,
+                                               args.tracked_mirrors, "it has no object tracks")
     emit_table(fn(quick=args.quick, **options), args.out)
     return 0
 

@@ -197,3 +197,31 @@ def test_looks_computed_together_equal_looks_computed_one_by_one():
 def _call(est, ev, size, targets):
     f = est(ev, size, targets)
     return np.stack([f.nx, f.ny], 1).astype(np.float64), f.uncertainty
+
+
+def test_a_target_s_flow_does_not_depend_on_the_other_targets():
+    # The pipeline's tracked_mirrors computes the targets in the tracked boxes with 8 looks and
+    # the others with one, in two calls: each must get the flow one call over all targets gives,
+    # bit for bit, with both second looks (their gates and slices are per target).
+    ev, a, b, size, targets, _ = _window()
+    part = np.random.default_rng(0).random(len(targets)) < 0.2
+    for mirrors in (1, 8):
+        est = OnnxNormalFlow(threads=1, mirrors=mirrors)
+        whole, whole_unc = _flow(est, ev, a, b, size, targets)
+        for sel in (part, ~part):
+            flow, unc = _flow(est, ev, a, b, size, targets[sel])
+            np.testing.assert_array_equal(flow, whole[sel])
+            np.testing.assert_array_equal(unc, whole_unc[sel])
+
+
+def test_with_mirrors_shares_the_model_and_gives_a_new_estimator_s_flows():
+    ev, a, b, size, targets, _ = _window()
+    est = OnnxNormalFlow(threads=1)
+    eight = est.with_mirrors(8)
+    assert eight.session is est.session and eight.mirrors == 8 and est.mirrors == 1 and est.looks == (0,)
+    np.testing.assert_array_equal(_flow(eight, ev, a, b, size, targets)[0],
+                                  _flow(OnnxNormalFlow(threads=1, mirrors=8), ev, a, b, size, targets)[0])
+    np.testing.assert_array_equal(_flow(est, ev, a, b, size, targets)[0],
+                                  _flow(OnnxNormalFlow(threads=1), ev, a, b, size, targets)[0])
+    with pytest.raises(ConfigError, match="mirrors must be one of"):
+        est.with_mirrors(3)
