@@ -15,7 +15,6 @@ The ONNX file (written by :func:`evseg.export.export_onnx`) holds the head, one 
 from __future__ import annotations
 
 import copy
-
 import json
 import time
 from dataclasses import replace
