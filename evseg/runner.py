@@ -67,6 +67,8 @@ def build_pipeline_config(job: SegmentJob):
         raise ConfigError(f"--flow-context-ms must be >= 0, got {job.flow_context_ms}")
     if job.min_track_windows < 1:
         raise ConfigError(f"--min-track-windows must be >= 1, got {job.min_track_windows}")
+    if job.tracked_max_targets is not None and job.tracked_max_targets < 0:
+        raise ConfigError(f"--tracked-max-targets must be >= 0, got {job.tracked_max_targets}")
     if job.flow_file is None and job.flow_method == "learned":
         from evseg.veckm_flow.encoding import MAX_SLICE_SPAN_US
 

@@ -383,6 +383,9 @@ def test_segment_tracked_mirrors_records_the_setting(sim, tmp_path):
                  "--tracked-max-targets", "300", "--no-progress", "--worker", "thread"]) == 0
     config = str(np.load(res)["config"])
     assert "tracked_mirrors: 8" in config and "tracked_max_targets: 300" in config
+    bad = tmp_path / "bad.npz"
+    assert main(["segment", str(d / "sim.npz"), "--out", str(bad), "--tracked-max-targets", "-5", "--no-progress"]) == 2
+    assert not bad.exists()
 
 
 @pytest.mark.parametrize("field, bad, match", [
