@@ -116,11 +116,11 @@ class PipelineConfig:
             flow's time on slow scenes (~3 ms more per window at 1 M events/s, where the flow
             runs beside the segmentation). Off by default here: on simulated validation scenes
             it found a few more objects with fewer false ones, but on the real one-motion
-            recordings it put a false object in more windows (README, *Normal flow*).
+            recordings it put a false object in more windows (docs/normal_flow.md).
         mirrors: with ``flow="learned"``, the flow averaged over this many mirror images of
             each window (1, 2, 4 or 8; :mod:`evseg.veckm_flow.mirrors`): a more accurate flow at
-            ``mirrors`` times the flow's time, for offline runs (README, *Pipeline*). 1: the
-            window as it is.
+            ``mirrors`` times the flow's time, for offline runs (docs/normal_flow.md, Mirror
+            looks). 1: the window as it is.
         tracked_mirrors: with ``flow="learned"``, the mirror looks (1, 2, 4 or 8) for the
             targets where the object tracks expect an object: inside the boxes the tracks
             predict for the window, grown by ``tracked_margin_px``; the other targets get
@@ -131,7 +131,7 @@ class PipelineConfig:
             8.0 %); held out 72.8 -> 74.4 % and 20.6 -> 14.4 % (ego-motion-only 8.3 -> 8.8
             %), but on the real one-motion recordings 16.8 -> 18.6 % of the windows with a
             false object, so it is off by default. It costs far less than ``mirrors=8`` where
-            the objects are small (README, *Normal flow*). The boxes are the
+            the objects are small (docs/normal_flow.md). The boxes are the
             ones known when the window before is segmented (the tracks after window t - 2,
             moved on by two strides), so the flow of window t is still computed beside the
             segmentation of window t - 1 and the results do not depend on ``overlap`` or

@@ -69,7 +69,7 @@ class SegmentationConfig:
     clipped to [1/4, 4], s = the number of events in its cell (:func:`.preprocessing.cell_support`):
     a node stands for the events of its cell, so a small textured object whose few nodes each
     summarise ~20 events outweighs as many nodes of a sparse edge. 0 = every node weighs 1
-    (the paper's downsampled energy). 0.25 chosen on validation seeds (README, *Segmentation*):
+    (the paper's downsampled energy). 0.25 chosen on validation seeds (docs/segmentation.md):
     exact flow, seeds 900-920: clean detection 0.957 -> 0.974, with 30 % outliers 0.934 ->
     0.941; learned flow, seeds 900-909: detection 68.5 -> 72.5 %, windows with a false object
     12.2 -> 13.7 % (ego-motion only 10.0 -> 9.7 %). 0.5 scored as well on exact flow but

@@ -23,7 +23,7 @@ already sees fast flow:
    look is (0.18 against 0.65 rad).
 
 The rule and its constants were chosen on learned-flow validation scenes (seeds 900-919, never
-the held-out seeds): see the README's *Normal flow* section for the figures.
+the held-out seeds): see docs/normal_flow.md for the figures.
 """
 
 from __future__ import annotations

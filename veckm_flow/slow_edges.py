@@ -22,8 +22,8 @@ longer slice adds events of where it was long ago), which is why it is gated:
    ``1 / uncertainty^2`` (each look's predicted angular error), mixed into the first look's
    direction with the gate's weight; the speed stays the first look's (the slow look's runs
    lower). Averaging the flow vectors instead gave the same flow accuracy, but the
-   segmentation split zooming backgrounds into bands where the gate fades (README, *Normal
-   flow*).
+   segmentation split zooming backgrounds into bands where the gate fades
+   (docs/normal_flow.md).
 3. The uncertainty (``SlowEdges.uncertainty``): ``"combined"``, the ``1 / u^2``-weighted mean of
    the two looks' (as :func:`~evseg.veckm_flow.fast_edges.combine`), ranks the errors best
    (validation: dropping the 20 % most uncertain lowers the median error by 23 % against 20 %
@@ -32,7 +32,7 @@ longer slice adds events of where it was long ago), which is why it is gated:
    reported more false objects on validation).
 
 It costs a second encoding of the gated targets over twice the events: 1.5-2.4x the flow time on
-slow scenes (README, *Normal flow*). The rule and its constants were chosen on validation
+slow scenes (docs/normal_flow.md). The rule and its constants were chosen on validation
 scenes (seeds 900-903), never on the held-out seeds.
 """
 

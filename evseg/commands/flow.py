@@ -38,13 +38,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--model", type=Path, default=None, help="ONNX normal-flow model (default: the shipped one)")
     p.add_argument("--baseline", action="store_true", help="use the plane-fit baseline instead of the model")
     p.add_argument("--no-fast-edges", action="store_true",
-                   help="skip the time-stretched second look at fast flows (README, Normal flow)")
+                   help="skip the time-stretched second look at fast flows (docs/normal_flow.md)")
     p.add_argument("--no-slow-edges", action="store_true",
                    help="skip the time-compressed second look at slow flows over a longer slice "
-                        "(README, Normal flow; up to 2.4x less time on slow scenes)")
+                        "(docs/normal_flow.md; up to 2.4x less time on slow scenes)")
     p.add_argument("--mirrors", type=int, choices=[1, 2, 4, 8], default=1,
-                   help="average the model's flow over this many mirror images of each slice (README, "
-                        "Normal flow; 8: 9.8 instead of 11.5 deg median angular error on held-out scenes, at ~5x the time)")
+                   help="average the model's flow over this many mirror images of each slice "
+                        "(docs/normal_flow.md; 8: 9.8 instead of 11.5 deg median angular error "
+                        "on held-out scenes, at ~5x the time)")
     p.add_argument("--calib", type=Path, default=None, help="calibration YAML (default: the file's own, if any)")
     p.add_argument("--window-ms", type=float, default=10.0, help="slice duration (ms): the targets of one slice")
     p.add_argument("--context-ms", type=float, default=20.0,
