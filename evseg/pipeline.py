@@ -128,9 +128,10 @@ class PipelineConfig:
             validation scenes (seeds 900-909) 8 looks in the tracked boxes found 75.1 % of the
             objects against 72.9 % with one look everywhere and 76.5 % with 8 everywhere, and
             cut the windows with a false object from 15.2 to 14.1 % (ego-motion-only 9.7 ->
-            8.0 %); held out 72.8 -> 74.4 % and 20.6 -> 14.4 % (ego-motion-only 8.3 -> 8.8
-            %), but on the real one-motion recordings 16.8 -> 18.6 % of the windows with a
-            false object, so it is off by default. It costs far less than ``mirrors=8`` where
+            8.0 %); held out (``evseg eval pipeline --tracked-mirrors 8``) 71.9 -> 73.0 % and
+            20.3 -> 13.6 % (ego-motion-only 3.3 -> 2.1 %), but on the real one-motion
+            recordings 12.6 -> 13.2 % of the windows with a false object, at 1.3-2.5x the time
+            per window, so it is off by default. It costs far less than ``mirrors=8`` where
             the objects are small (docs/normal_flow.md). The boxes are the
             ones known when the window before is segmented (the tracks after window t - 2,
             moved on by two strides), so the flow of window t is still computed beside the

@@ -60,9 +60,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "docs/normal_flow.md)")
     p.add_argument("--tracked-mirrors", type=int, choices=[1, 2, 4, 8], default=1,
                    help="learned flow: this many mirror looks only where the object tracks expect an object "
-                        "(inside their predicted boxes): more objects found and fewer false ones among them, at "
-                        "a fraction of --mirrors 8's time when the objects are small, but no fewer false objects "
-                        "where there is no object; docs/normal_flow.md")
+                        "(inside their predicted boxes): more objects found and fewer false ones, at a "
+                        "fraction of --mirrors 8's time when the objects are small; on real recordings "
+                        "without objects about as many false ones; docs/normal_flow.md")
     p.add_argument("--tracked-max-targets", type=int, default=None, metavar="N",
                    help="with --tracked-mirrors: at most N targets per window get the extra looks (the "
                         "smallest boxes first), which bounds its time; default: all in the boxes")
