@@ -80,11 +80,46 @@ def speed_reference_ms(repeats: int = 5) -> float:
     return float(np.median(times))
 
 
+NUMERIC_PACKAGES = ("numpy", "numba", "onnxruntime", "torch", "PyMaxflow")
+"""Packages whose builds decide the floating-point results (and speed) of the figures."""
+
+
+def library_versions(packages: tuple[str, ...] = NUMERIC_PACKAGES) -> str:
+    """``name version`` of each installed package, read from its metadata (nothing is imported).
+
+    >>> library_versions(("numpy", "no-such-package")).startswith("numpy ")
+    True
+    """
+    from importlib import metadata
+
+    found = []
+    for name in packages:
+        try:
+            found.append(f"{name} {metadata.version(name)}")
+        except metadata.PackageNotFoundError:
+            continue
+    return ", ".join(found)
+
+
+def host_cpu() -> str:
+    """The CPU model LLVM compiles the encoder's kernels for (e.g. ``znver4``), or the platform's
+    processor name when llvmlite is missing."""
+    try:
+        import llvmlite.binding as llvm
+
+        return str(llvm.get_host_cpu_name())
+    except Exception:  # llvmlite absent or unable to query the host: say what platform knows
+        return platform.processor() or platform.machine()
+
+
 def machine_line() -> str:
+    """First line of every bench and eval table. Besides the speed reference it names the CPU
+    model and the numeric libraries' versions: the same code gave a label or two differently
+    on another day (README, *Robustness*), and those are what can differ between installs."""
     threads = os.environ.get("OMP_NUM_THREADS", "default")
     return (
-        f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
-        f"Python {platform.python_version()}, OMP_NUM_THREADS={threads}, "
+        f"machine: {platform.processor() or platform.machine()} ({host_cpu()}), {os.cpu_count()} cores, "
+        f"Python {platform.python_version()}, {library_versions()}, OMP_NUM_THREADS={threads}, "
         f"speed reference {speed_reference_ms():.1f} ms (lower = faster; `speed_reference_ms` in "
         f"evseg/commands/bench.py)"
     )
