@@ -264,8 +264,8 @@ class OnnxNormalFlow:
         for start in sorted(set(starts) - {-1}):
             group = [i for i, s in enumerate(starts) if s == start]
             union = np.unique(np.concatenate([gated[i] for i in group]))
-            seconds = self._encode_and_predict(events[start:], sensor_size, targets[union] - start, calibration, cfg,
-                                        tuple(matrices[i] for i in group), timing)
+            seconds = self._encode_and_predict(events[start:], sensor_size, targets[union] - start,
+                                               calibration, cfg, tuple(matrices[i] for i in group), timing)
             for i, second in zip(group, seconds):
                 g = gated[i]
                 at = np.searchsorted(union, g)
@@ -291,8 +291,8 @@ class OnnxNormalFlow:
             cfg = replace(self.cfg, t_scale_us=self.cfg.t_scale_us * se.compress)
             older = history[compressed_start(history["t"], events["t"], se.compress):]
             slice_ = np.concatenate([older, events]) if len(older) else events
-            seconds = self._encode_and_predict(slice_, sensor_size, targets[union] + len(older), calibration, cfg,
-                                        matrices, timing)
+            seconds = self._encode_and_predict(slice_, sensor_size, targets[union] + len(older), calibration,
+                                               cfg, matrices, timing)
             for lk, w, g, second in zip(looks, weights, gated, seconds):
                 at = np.searchsorted(union, g)
                 old, new = tuple(a[g] for a in lk), tuple(a[at] for a in second)
