@@ -76,18 +76,24 @@ def evaluate_recording(rec, config, keep_results: bool = False) -> RecordingEval
     return RecordingEvaluation(scores, results, ae, float(np.median(times) * 1e3) if times else float("nan"))
 
 
-def evaluate_pipeline(quick: bool = False, flow: str = "learned", seeds=None, **pipeline_options) -> list[dict]:
+def evaluate_pipeline(quick: bool = False, flow: str = "learned", seeds=None, overrides: dict | None = None,
+                      **pipeline_options) -> list[dict]:
     """The simulated benchmark suite: one row per scene, then one mean row per preset and overall.
 
     Full: 8 seeds x (eed_like, evimo_like, driving_like) + 8 ego-motion-only scenes, 300 ms
     each, 10 ms windows. Quick: 2 seeds per preset, 100 ms. ``seeds``: other scene seeds (the
     README's learned-flow validation figures use ``range(900, 910)``; the network was trained on
-    seeds < 48). ``pipeline_options``: further :class:`~evseg.pipeline.PipelineConfig` fields
-    (e.g. ``min_track_windows=2``).
+    seeds < 48). ``overrides``: :class:`~evseg.segmentation.SegmentationConfig` fields set on
+    every preset (e.g. ``{"max_object_extent": 0.35}``), as ``evaluate_oracle`` takes them.
+    ``pipeline_options``: further :class:`~evseg.pipeline.PipelineConfig` fields (e.g.
+    ``min_track_windows=2``).
     """
     from evseg.pipeline import PipelineConfig
-    from evseg.segmentation import load_segmentation_config
+    from evseg.segmentation import SegmentationConfig, load_segmentation_config
+    from evseg.segmentation.config import with_overrides
     from evseg.simulator import load_scene_preset, simulate
+
+    with_overrides(SegmentationConfig(), overrides, "evaluate_pipeline")  # bad keys fail before any work
 
     presets = ["eed_like", "evimo_like", "driving_like", "ego_only"]
     if seeds is None:
@@ -97,8 +103,8 @@ def evaluate_pipeline(quick: bool = False, flow: str = "learned", seeds=None, **
     for preset in presets:
         for seed in seeds:
             rec = simulate(load_scene_preset(preset), seed=seed, duration_us=duration_us)
-            cfg = PipelineConfig(flow=flow, segmentation=load_segmentation_config(SEGMENTATION_PRESET[preset]),
-                                 **pipeline_options)
+            seg = with_overrides(load_segmentation_config(SEGMENTATION_PRESET[preset]), overrides, "evaluate_pipeline")
+            cfg = PipelineConfig(flow=flow, segmentation=seg, **pipeline_options)
             ev = evaluate_recording(rec, cfg)
             s = summarize(ev.scores)
             per_preset.setdefault(preset, []).extend(ev.scores)

@@ -253,7 +253,9 @@ class SegmentationConfig:
     68.7 / 73.9 % with false-object windows 3.2 / 10.8 / 36.3 -> 2.5 / 10.3 / 34.2 %; real
     one-motion recordings 16.4 -> 12.6 %, the EED ball unchanged; ground-truth validation
     (seeds 900-920) clean unchanged, 0.9562 -> 0.9553 with 30 % outliers. 0.3 gave half the
-    gain; 0.2 lost detection (EVIMO-like 62.8 %, driving-like 68.2 %)."""
+    gain; 0.2 lost detection (EVIMO-like 62.8 %, driving-like 68.2 %). Rerun the comparison with
+    ``evaluate_pipeline(seeds=range(900, 910), overrides={"max_object_extent": 0.35})`` (and
+    ``range(910, 920)``) from :mod:`evseg.pipeline_eval`."""
     min_object_nodes: int = 6
     """Objects (IMOs) with fewer nodes are set to -1 (unassigned) in the result."""
     split_gap_px: float = 12.0
@@ -369,6 +371,22 @@ def _coerce(key: str, value, default, source: str):
 def preset_names() -> list[str]:
     """Names of the bundled presets (configs/segmentation/*.yaml)."""
     return sorted(p.stem for p in _PRESET_DIR.glob("*.yaml"))
+
+
+def with_overrides(cfg: SegmentationConfig, overrides: dict | None, where: str) -> SegmentationConfig:
+    """``cfg`` with the fields in ``overrides`` replaced (validated like any config); an unknown
+    field raises :class:`ConfigError` naming ``where`` and the field. How the evaluations
+    compare a setting with the presets' own.
+
+    >>> with_overrides(SegmentationConfig(), {"lambda_m": 60.0}, "example").lambda_m
+    60.0
+    """
+    if not overrides:
+        return cfg
+    unknown = sorted(set(overrides) - {f.name for f in dataclasses.fields(SegmentationConfig)})
+    if unknown:
+        raise ConfigError(f"{where}: unknown segmentation parameter(s) {unknown}")
+    return dataclasses.replace(cfg, **overrides)
 
 
 def load_segmentation_config(name_or_path: str | Path) -> SegmentationConfig:

@@ -138,14 +138,10 @@ def evaluate_oracle(quick: bool = False, seeds=None, overrides: dict | None = No
     ``overrides``: :class:`SegmentationConfig` fields set on every preset (e.g.
     ``{"contrast_min_weight": 1.0}``), to compare settings the way the README does.
     """
-    import dataclasses
-
-    from evseg.errors import ConfigError
     from evseg.metrics import summarize
+    from evseg.segmentation.config import with_overrides
 
-    unknown = sorted(set(overrides or {}) - {f.name for f in dataclasses.fields(SegmentationConfig)})
-    if unknown:
-        raise ConfigError(f"evaluate_oracle: unknown segmentation parameter(s) {unknown}")
+    with_overrides(SegmentationConfig(), overrides, "evaluate_oracle")  # bad keys fail before any work
     if seeds is None:
         seeds = [1000] if quick else list(range(1000, 1007))
     seeds = [int(s) for s in seeds]
@@ -156,7 +152,7 @@ def evaluate_oracle(quick: bool = False, seeds=None, overrides: dict | None = No
         block = []
         for preset in PRESETS:
             for seed in seeds:
-                cfg = dataclasses.replace(load_segmentation_config(PRESETS[preset]), **(overrides or {}))
+                cfg = with_overrides(load_segmentation_config(PRESETS[preset]), overrides, "evaluate_oracle")
                 block.append(evaluate_scene(preset, seed, duration, outlier_fraction=frac, config=cfg))
         rows += block
         groups = [(p, [r for r in block if r["preset"] == p]) for p in PRESETS] + [("ALL", block)]

@@ -668,6 +668,30 @@ def test_evaluate_pipeline_passes_pipeline_options_on():
         evaluate_pipeline(quick=True, min_track_windows=0)
 
 
+def test_evaluate_pipeline_sets_segmentation_overrides_on_every_preset(monkeypatch):
+    """evaluate_pipeline(overrides=...) compares a segmentation setting with the presets' own,
+    as evaluate_oracle does: a misspelt field is named before any scene is simulated, and the
+    field reaches each scene's config (the recording evaluation is stubbed to record it)."""
+    import evseg.pipeline_eval as pe
+    import evseg.simulator
+
+    monkeypatch.setattr(evseg.simulator, "simulate", lambda *a, **k: pytest.fail("simulated"))
+    with pytest.raises(ConfigError, match="max_objekt_extent"):
+        pe.evaluate_pipeline(quick=True, overrides={"max_objekt_extent": 0.35})
+
+    seen = []
+
+    def stop(rec, cfg, keep_results=False):
+        seen.append(cfg.segmentation.max_object_extent)
+        raise RuntimeError("stop")
+
+    monkeypatch.setattr(evseg.simulator, "simulate", lambda *a, **k: None)
+    monkeypatch.setattr(pe, "evaluate_recording", stop)
+    with pytest.raises(RuntimeError, match="stop"):
+        pe.evaluate_pipeline(quick=True, overrides={"max_object_extent": 0.35})
+    assert seen == [0.35]
+
+
 def test_evaluate_pipeline_simulates_the_seeds_asked(monkeypatch):
     """evaluate_pipeline(seeds=...) simulates those scenes (validation seeds, not the held-out
     1000-1007); the simulator is stubbed to record the first scene asked and stop."""
