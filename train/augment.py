@@ -44,12 +44,15 @@ class FlowSlice:
             where unknown (noise events); None when the source has no normal flow.
         optical_flow: (N, 2) float32 ground-truth optical flow, px/s, NaN where unknown; None
             when the source has none.
+        label: (N,) int16 ground-truth motion label (the simulator's: 0 background, k >= 1
+            object k, -1 noise); None when the source has none.
     """
 
     events: np.ndarray
     sensor_size: tuple[int, int]
     normal_flow: np.ndarray | None = None
     optical_flow: np.ndarray | None = None
+    label: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.events)
@@ -61,6 +64,7 @@ class FlowSlice:
             self.sensor_size,
             None if self.normal_flow is None else self.normal_flow[idx],
             None if self.optical_flow is None else self.optical_flow[idx],
+            None if self.label is None else self.label[idx],
         )
 
 
@@ -96,6 +100,7 @@ def _affine_events(s: FlowSlice, matrix: np.ndarray) -> FlowSlice:
         s.sensor_size,
         None if nf is None else nf[keep],
         None if of is None else of[keep],
+        None if s.label is None else s.label[keep],
     )
 
 
@@ -124,7 +129,7 @@ def flip_slice(s: FlowSlice, horizontal: bool, vertical: bool) -> FlowSlice:
     if vertical:
         ev["y"] = (h - 1) - ev["y"]
     nf, of = _map_flows(s, np.diag([-1.0 if horizontal else 1.0, -1.0 if vertical else 1.0]))
-    return FlowSlice(ev, s.sensor_size, nf, of)
+    return FlowSlice(ev, s.sensor_size, nf, of, s.label)
 
 
 def time_scale_slice(s: FlowSlice, factor: float) -> FlowSlice:
@@ -140,7 +145,7 @@ def time_scale_slice(s: FlowSlice, factor: float) -> FlowSlice:
         t0 = ev["t"][0]
         ev["t"] = t0 + np.rint((ev["t"] - t0) * float(factor)).astype(np.int64)
     nf, of = _map_flows(s, np.eye(2) / factor)
-    return FlowSlice(ev, s.sensor_size, nf, of)
+    return FlowSlice(ev, s.sensor_size, nf, of, s.label)
 
 
 def subsample_slice(s: FlowSlice, keep_fraction: float, rng: np.random.Generator) -> FlowSlice:
@@ -154,7 +159,8 @@ def add_noise_events(s: FlowSlice, rate_ev_px_s: float, rng: np.random.Generator
     """Add uniform background-activity noise at ``rate_ev_px_s`` events per pixel per second.
 
     Noise events are spread uniformly over the sensor and the slice's time span, with random
-    polarity; their flows are NaN (they are never training targets, only neighbours).
+    polarity; their flows are NaN (they are never training targets, only neighbours) and their
+    label -1.
     """
     if len(s) == 0 or rate_ev_px_s <= 0:
         return s
@@ -175,7 +181,8 @@ def add_noise_events(s: FlowSlice, rate_ev_px_s: float, rng: np.random.Generator
     def f(v):
         return None if v is None else np.concatenate([v, nan])[order]
 
-    return FlowSlice(ev[order], s.sensor_size, f(s.normal_flow), f(s.optical_flow))
+    label = None if s.label is None else np.concatenate([s.label, np.full(n, -1, s.label.dtype)])[order]
+    return FlowSlice(ev[order], s.sensor_size, f(s.normal_flow), f(s.optical_flow), label)
 
 
 @dataclass(frozen=True)

@@ -49,8 +49,9 @@ from evseg.train.augment import (
 HELD_OUT_SEED_START = 1000
 """Seeds at and above this are reserved for evaluation; training refuses them."""
 
-SHARD_FORMAT = 1
-"""Bumped whenever the shard layout or the way shards are built changes."""
+SHARD_FORMAT = 2
+"""Bumped whenever the shard layout or the way shards are built changes (2: rows carry
+``is_object``)."""
 
 
 # --------------------------------------------------------------------------- specs
@@ -166,7 +167,9 @@ def slice_examples(
     Returns:
         ``features`` (T, F) float16 encoder output (float16 halves the cache; the encoding
         is normalised to O(1) entries, so 3 significant digits are plenty),
-        ``normal_flow`` and ``optical_flow`` (T, 2) float32 px/s (NaN where unknown).
+        ``normal_flow`` and ``optical_flow`` (T, 2) float32 px/s (NaN where unknown),
+        ``is_object`` (T,) uint8, 1 where the target belongs to an independently moving object
+        (ground-truth label >= 1; 0 where the source has no labels).
     """
     from evseg.veckm_flow.encoding import encode_targets
     from evseg.veckm_flow.targets import select_targets
@@ -195,6 +198,8 @@ def slice_examples(
         "features": np.asarray(feats, dtype=np.float16),
         "normal_flow": nf[idx].astype(np.float32),
         "optical_flow": of[idx].astype(np.float32),
+        "is_object": (np.zeros(len(idx), np.uint8) if s.label is None
+                      else (s.label[idx] >= 1).astype(np.uint8)),
     }
 
 
@@ -203,6 +208,7 @@ def empty_examples(n_features: int) -> dict[str, np.ndarray]:
         "features": np.zeros((0, n_features), np.float16),
         "normal_flow": np.zeros((0, 2), np.float32),
         "optical_flow": np.zeros((0, 2), np.float32),
+        "is_object": np.zeros(0, np.uint8),
     }
 
 
@@ -225,7 +231,7 @@ def recording_examples(
 
 
 def simulated_recording(scene: SceneSpec) -> FlowSlice:
-    """Simulate one scene: events with GT normal flow and optical flow (px/s)."""
+    """Simulate one scene: events with GT normal flow and optical flow (px/s) and motion label."""
     from evseg.simulator import load_scene_preset, simulate
 
     rec = simulate(load_scene_preset(scene.preset), seed=scene.seed, duration_us=scene.duration_us)
@@ -234,6 +240,7 @@ def simulated_recording(scene: SceneSpec) -> FlowSlice:
         rec.stream.sensor_size,
         np.asarray(rec.normal_flow, np.float32),
         np.asarray(rec.flow, np.float32),
+        np.asarray(rec.label, np.int16),
     )
 
 
@@ -313,7 +320,7 @@ def save_shard(path: Path, rows: dict[str, np.ndarray]) -> None:
 
 def load_shard(path: Path) -> dict[str, np.ndarray]:
     with np.load(path) as z:
-        return {k: z[k] for k in ("features", "normal_flow", "optical_flow")}
+        return {k: z[k] for k in ("features", "normal_flow", "optical_flow", "is_object")}
 
 
 def _build_job(job: tuple) -> str:
@@ -374,7 +381,8 @@ class FlowTargetDataset:
 
     ``dataset[i]`` is one row; ``dataset.__getitems__(indices)`` (used by
     :class:`torch.utils.data.DataLoader` for a whole batch at once) returns a dict of tensors:
-    ``features`` (B, F) float32, ``normal_flow`` (B, 2) and ``optical_flow`` (B, 2) float32 px/s.
+    ``features`` (B, F) float32, ``normal_flow`` (B, 2) and ``optical_flow`` (B, 2) float32 px/s,
+    ``is_object`` (B,) float32 (1 on independently moving objects).
     """
 
     def __init__(self, rows: dict[str, np.ndarray]):

@@ -123,3 +123,18 @@ def test_right_angle_rotations_are_exact_grid_symmetries():
     r = rotate_slice(s, np.pi / 2)
     assert len(r) == 4
     assert sorted(zip(r.events["x"].tolist(), r.events["y"].tolist())) == sorted([(7, 0), (2, 3), (0, 7), (1, 2)])
+
+
+def test_labels_follow_their_events_through_every_transform():
+    """The ground-truth motion label travels with its event (noise events get -1), so the
+    training rows know which targets lie on moving objects."""
+    s = _slice()
+    s = FlowSlice(s.events, s.sensor_size, s.normal_flow, s.optical_flow, np.array([0, 1, -1, 2], np.int16))
+    key = lambda f: {(int(e["t"]), int(lab)) for e, lab in zip(f.events, f.label)}  # noqa: E731
+    for out in (rotate_slice(s, np.pi / 2), flip_slice(s, True, True), scale_slice(s, 1.0),
+                subsample_slice(s, 1.0, np.random.default_rng(0)), s.take(np.array([3, 0]))):
+        assert len(out.label) == len(out) and key(out) <= key(s)
+    assert time_scale_slice(s, 2.0).label.tolist() == [0, 1, -1, 2]
+    noisy = add_noise_events(s, rate_ev_px_s=5000.0, rng=np.random.default_rng(0))
+    assert len(noisy) > len(s) and sorted(noisy.label.tolist()).count(-1) == len(noisy) - 3
+    assert _slice().label is None and rotate_slice(_slice(), 0.0).label is None

@@ -149,6 +149,8 @@ def test_simulated_scene_shard(tmp_path):
     # Simulated targets always carry GT normal flow (noise events are never targets).
     assert np.isfinite(rows["normal_flow"]).all()
     assert np.all(np.linalg.norm(rows["normal_flow"], axis=1) > 0)
+    # EVIMO-like scenes hold objects: some targets lie on them, the others on the background.
+    assert set(np.unique(rows["is_object"]).tolist()) == {0, 1}
 
 
 def test_target_selection_drawn_per_slice(edge_recording):

@@ -106,3 +106,25 @@ def test_uncertainty_target_chooses_the_error_the_uncertainty_learns():
         assert m.hparams.uncertainty_target == target
     with pytest.raises(ValueError, match="uncertainty_target must be one of angle, relative_error"):
         NormalFlowModule(uncertainty_target="epe")
+
+
+def test_object_weight_weighs_object_targets_in_the_normal_flow_loss():
+    """object_weight w: the normal-flow loss is the weighted mean with weight w on object
+    targets and 1 elsewhere; 1 (default) or rows without `is_object` give the plain mean."""
+    import pytest
+
+    from evseg.veckm_flow import losses as L
+
+    batch = _batch(16)
+    batch["is_object"] = (torch.arange(16) < 4).float()
+    torch.manual_seed(0)
+    m = NormalFlowModule(head={"hidden": 16, "layers": 1}, object_weight=5.0)
+    per = L.normal_flow_loss(m(batch["features"])[:, :2], batch["normal_flow"] / m.flow_unit_px_s)
+    expected = (5.0 * per[:4].sum() + per[4:].sum()) / (5.0 * 4 + 12)
+    torch.testing.assert_close(m._losses(batch)["nf"], expected)
+    plain = {k: v for k, v in batch.items() if k != "is_object"}
+    torch.testing.assert_close(m._losses(plain)["nf"], per.mean())
+    m.hparams.object_weight = 1.0
+    torch.testing.assert_close(m._losses(batch)["nf"], per.mean())
+    with pytest.raises(ValueError, match="object_weight must be > 0"):
+        NormalFlowModule(object_weight=0.0)
