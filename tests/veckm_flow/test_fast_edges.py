@@ -65,11 +65,13 @@ def test_fast_edges_bring_a_fast_ball_closer_to_its_speed_and_leave_slow_edges_a
 
     ball, bg = ok & (label >= 1), ok & (label == 0)
     assert ball.sum() >= 40
-    # Measured on this slice (the last 10 ms of 30 ms of EED-like validation seed 900):
-    # 0.488 -> 0.660 for the ball's 53 targets, 96 % of them changed, 2 % of the background's.
-    # The margins leave room for other CPUs' float rounding, not for the effect to vanish.
-    assert np.median(ratio(plain)[ball]) < 0.55
-    assert np.median(ratio(fast)[ball]) > 0.6
+    # Measured on this slice (the last 10 ms of 30 ms of EED-like validation seed 900) with
+    # the shipped model: 0.608 -> 0.760 for the ball's 53 targets, 96 % of them changed, 2 % of
+    # the background's (the model before the object-weighted one: 0.488 -> 0.660). The margins
+    # leave room for other CPUs' float rounding, not for the effect to vanish.
+    assert np.median(ratio(plain)[ball]) < 0.66
+    assert np.median(ratio(fast)[ball]) > 0.70
+    assert np.median(ratio(fast)[ball]) - np.median(ratio(plain)[ball]) > 0.1
     changed = (fast.nx != plain.nx) | (fast.ny != plain.ny)
     assert changed[ball].mean() > 0.9
     assert changed[bg].mean() < 0.1  # the gate stays closed on most of the slower net
