@@ -10,6 +10,7 @@ import pytest
 
 import evseg.pipeline_real as pr
 from evseg.errors import EvsegError, FormatError
+from evseg.tracking import box_iou
 
 
 def _write_frames(folder, ball_xy, background=True):
@@ -125,8 +126,7 @@ def test_eed_ball_is_its_own_object_and_the_net_stays_whole(shared_data):
         ball = pr.ball_object(r.boxes, (track[0, 0] + track[0, 1] * mid, track[1, 0] + track[1, 1] * mid))
         others = [b for k, b in r.boxes.items() if k != ball]
         if ball is not None:
-            bx0, by0, bx1, by1 = r.boxes[ball]
-            on_ball = [b for b in others if b[0] <= bx1 and bx0 <= b[2] and b[1] <= by1 and by0 <= b[3]]
+            on_ball = [b for b in others if box_iou(b, r.boxes[ball]) > 0]
             split_ball += bool(on_ball)
             others = [b for b in others if b not in on_ball]
         # At most one object besides the ball, so the net is never several objects.
