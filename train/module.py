@@ -20,6 +20,7 @@ import math
 import lightning.pytorch as pl
 import torch
 
+from evseg.errors import ConfigError
 from evseg.veckm_flow.encoding import EncodingConfig
 from evseg.veckm_flow.model import FlowHead
 from evseg.veckm_flow import losses as L
@@ -79,9 +80,9 @@ class NormalFlowModule(pl.LightningModule):
                                    "uncertainty_target": uncertainty_target,
                                    "object_weight": float(object_weight)})
         if not object_weight > 0:
-            raise ValueError(f"model.object_weight must be > 0, got {object_weight}")
+            raise ConfigError(f"model.object_weight must be > 0, got {object_weight}")
         if uncertainty_target not in UNCERTAINTY_TARGETS:
-            raise ValueError(f"model.uncertainty_target must be one of {', '.join(UNCERTAINTY_TARGETS)}, "
+            raise ConfigError(f"model.uncertainty_target must be one of {', '.join(UNCERTAINTY_TARGETS)}, "
                              f"got {uncertainty_target!r}")
         self.encoding_config = EncodingConfig.from_dict(encoding)
         self.head = FlowHead(in_features=self.encoding_config.n_features, **head)
