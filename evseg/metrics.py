@@ -117,6 +117,10 @@ class WindowScore:
         ious: IoU of each ground-truth object's mask with its matched detection's mask
             (0 for a missed object), length ``n_truth``.
         n_false: detections matched to no ground-truth object (false objects).
+        outcomes: one of :data:`OUTCOMES` per ground-truth object, in truth order: why a
+            missed object was missed (see :func:`detection_outcome`).
+        truth_events: events each ground-truth object fired in the window, in truth order
+            (empty when the caller did not give them).
     """
 
     n_truth: int
@@ -124,12 +128,43 @@ class WindowScore:
     n_detected_ok: int
     ious: tuple[float, ...]
     n_false: int
+    outcomes: tuple[str, ...] = ()
+    truth_events: tuple[int, ...] = ()
+
+
+OUTCOMES = ("detected", "not_found", "too_small", "spills_out")
+"""How a ground-truth object fared in a window (:func:`detection_outcome`)."""
+
+
+def detection_outcome(detected: np.ndarray | None, truth: np.ndarray) -> str:
+    """Which clause of the detection criterion a ground-truth region meets or fails.
+
+    ``detected``: the box mask of the detection matched to it (None when no detection
+    overlaps it); ``truth``: its ground-truth box mask. Returns ``"detected"`` when
+    :func:`detection_success` holds, else ``"not_found"`` (nothing matched), ``"spills_out"``
+    (|D ∩ G| <= |D \\ G|: more of the detection lies outside the truth box than inside, e.g. the
+    object merged with its surroundings or the box is displaced) or ``"too_small"`` (the
+    detection lies mostly inside the truth box but covers too little of it: IoU <= 0.5).
+
+    >>> g = box_to_mask((0, 0, 9, 9), (20, 20))
+    >>> detection_outcome(box_to_mask((0, 0, 3, 9), (20, 20)), g)
+    'too_small'
+    >>> detection_outcome(box_to_mask((0, 0, 19, 19), (20, 20)), g)
+    'spills_out'
+    """
+    if detected is None:
+        return "not_found"
+    if detection_success(detected, truth):
+        return "detected"
+    inter = np.count_nonzero(detected & truth)
+    return "spills_out" if inter <= np.count_nonzero(detected & ~truth) else "too_small"
 
 
 def score_window(
     detected_masks: list[np.ndarray],
     truth_masks: list[np.ndarray],
     truth_boxes: list[Box] | None = None,
+    truth_events: list[int] | None = None,
 ) -> WindowScore:
     """Score one window: match detections to ground truth and apply both metrics.
 
@@ -139,36 +174,59 @@ def score_window(
         truth_boxes: the ground-truth boxes for the detection criterion (default: the boxes
             of ``truth_masks``). The detected region for the criterion is the box of the
             detected mask, matching the box annotation of EED.
+        truth_events: optional events fired by each ground-truth object in the window (for
+            :func:`summarize`'s detection rate over objects with enough events).
     """
     shape = truth_masks[0].shape if truth_masks else (detected_masks[0].shape if detected_masks else (1, 1))
     if truth_boxes is None:
         truth_boxes = [mask_to_box(m) or (0, 0, -1, -1) for m in truth_masks]
+    if truth_events is not None and len(truth_events) != len(truth_masks):
+        raise ValueError(f"score_window: {len(truth_events)} event counts for {len(truth_masks)} truth objects")
     pairs = match_regions(detected_masks, truth_masks)
     ious = [0.0] * len(truth_masks)
-    ok = 0
+    outcomes = ["not_found"] * len(truth_masks)
     for d, g, iou in pairs:
         ious[g] = iou
         dbox = mask_to_box(detected_masks[d])
-        if dbox is not None and detection_success(box_to_mask(dbox, shape), box_to_mask(truth_boxes[g], shape)):
-            ok += 1
+        if dbox is not None:
+            outcomes[g] = detection_outcome(box_to_mask(dbox, shape), box_to_mask(truth_boxes[g], shape))
     return WindowScore(
         n_truth=len(truth_masks),
         n_detected=len(detected_masks),
-        n_detected_ok=ok,
+        n_detected_ok=outcomes.count("detected"),
         ious=tuple(ious),
         n_false=len(detected_masks) - len(pairs),
+        outcomes=tuple(outcomes),
+        truth_events=tuple(int(n) for n in truth_events) if truth_events is not None else (),
     )
+
+
+MIN_OBJECT_EVENTS = 50
+"""A ground-truth object with fewer events in a window is 'sparse' there: no labelling of
+events can box it reliably (``evseg eval seg`` does not count such objects at all)."""
 
 
 @dataclass(frozen=True)
 class SegmentationSummary:
-    """Aggregate over windows: the figures reported in the README tables."""
+    """Aggregate over windows: the figures reported in the README tables.
+
+    The ``missed_*`` shares split the ground-truth objects that were not detected by
+    :func:`detection_outcome` (they add up to 1 - ``detection_rate``). ``sparse_share`` and
+    ``detection_rate_dense`` need the windows' ``truth_events`` (NaN without them): the share
+    of ground-truth objects with fewer than :data:`MIN_OBJECT_EVENTS` events in their window,
+    and the detection rate over the others.
+    """
 
     windows: int
     detection_rate: float  # detected ground-truth objects / all ground-truth objects
     mean_iou: float  # mean over ground-truth objects (misses count as 0)
     count_correct_rate: float  # share of windows where the object count equals the truth
     false_object_rate: float  # share of windows with at least one false object
+    missed_not_found: float = float("nan")
+    missed_too_small: float = float("nan")
+    missed_spills_out: float = float("nan")
+    sparse_share: float = float("nan")
+    detection_rate_dense: float = float("nan")
 
 
 def summarize(scores: list[WindowScore]) -> SegmentationSummary:
@@ -176,12 +234,33 @@ def summarize(scores: list[WindowScore]) -> SegmentationSummary:
     n_truth = sum(s.n_truth for s in scores)
     ious = [v for s in scores for v in s.ious]
     nan = float("nan")
+    outcomes = [o for s in scores for o in s.outcomes]
+    known = bool(outcomes) and len(outcomes) == n_truth  # scores built without outcomes: NaN
+
+    def share(kind: str) -> float:
+        return outcomes.count(kind) / n_truth if known else nan
+
+    sparse = dense_ok = n_dense = 0
+    with_events = bool(scores) and all(len(s.truth_events) == s.n_truth for s in scores) and n_truth > 0
+    if with_events:
+        for s in scores:
+            for n, o in zip(s.truth_events, s.outcomes):
+                if n < MIN_OBJECT_EVENTS:
+                    sparse += 1
+                else:
+                    n_dense += 1
+                    dense_ok += o == "detected"
     return SegmentationSummary(
         windows=len(scores),
         detection_rate=sum(s.n_detected_ok for s in scores) / n_truth if n_truth else nan,
         mean_iou=float(np.mean(ious)) if ious else nan,
         count_correct_rate=float(np.mean([s.n_detected == s.n_truth for s in scores])) if scores else nan,
         false_object_rate=float(np.mean([s.n_false > 0 for s in scores])) if scores else nan,
+        missed_not_found=share("not_found"),
+        missed_too_small=share("too_small"),
+        missed_spills_out=share("spills_out"),
+        sparse_share=sparse / n_truth if with_events else nan,
+        detection_rate_dense=dense_ok / n_dense if with_events and n_dense else nan,
     )
 
 

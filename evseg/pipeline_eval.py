@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from evseg.metrics import WindowScore, angular_error_deg, score_window, summarize
+from evseg.metrics import MIN_OBJECT_EVENTS, WindowScore, angular_error_deg, score_window, summarize
 
 # simulator preset -> segmentation preset
 SEGMENTATION_PRESET = {
@@ -64,8 +64,11 @@ def evaluate_recording(rec, config, keep_results: bool = False) -> RecordingEval
         truth = rec.window_truth(res.t0_us, res.t1_us)
         visible = [k for k, oid in enumerate(truth.object_ids) if oid in truth.boxes]
         detected = [res.masks[k] for k in sorted(res.masks)]
+        own = rec.label[res.first_event : res.first_event + len(res.events)]
+        n_events = np.bincount(np.maximum(own, 0).astype(np.int64), minlength=max(truth.object_ids, default=0) + 1)
         scores.append(score_window(detected, [truth.masks[k] for k in visible],
-                                   [truth.boxes[truth.object_ids[k]] for k in visible]))
+                                   [truth.boxes[truth.object_ids[k]] for k in visible],
+                                   truth_events=[int(n_events[truth.object_ids[k]]) for k in visible]))
         gt = rec.normal_flow[res.first_event + res.flow_index]
         ok = np.isfinite(gt[:, 0])
         if ok.any():
@@ -140,6 +143,11 @@ def _row(name: str, s, ae: float, ms: float) -> dict:
         "mean IoU": s.mean_iou,
         "count correct %": 100 * s.count_correct_rate,
         "windows with false objects %": 100 * s.false_object_rate,
+        "missed: not found %": 100 * s.missed_not_found,
+        "missed: box too small %": 100 * s.missed_too_small,
+        "missed: box spills out %": 100 * s.missed_spills_out,
+        f"objects under {MIN_OBJECT_EVENTS} events %": 100 * s.sparse_share,
+        f"detection rate, >= {MIN_OBJECT_EVENTS} events %": 100 * s.detection_rate_dense,
         "flow median AE deg": ae,
         "ms/window": ms,
     }

@@ -24,10 +24,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from evseg.metrics import MIN_OBJECT_EVENTS
 from evseg.segmentation.config import SegmentationConfig, load_segmentation_config
 from evseg.segmentation.solver import segment_normal_flow
 
-MIN_TRUTH_EVENTS = 50
+MIN_TRUTH_EVENTS = MIN_OBJECT_EVENTS
 """A ground-truth object needs this many events in a window to be counted there."""
 
 # simulator preset -> segmentation preset

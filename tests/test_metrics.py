@@ -5,6 +5,7 @@ from evseg.metrics import (
     angular_error_deg,
     box_to_mask,
     convex_hull_mask,
+    detection_outcome,
     detection_success,
     event_iou,
     flow_errors,
@@ -58,6 +59,48 @@ def test_score_window_matches_and_counts_false_objects():
     assert summary.mean_iou == pytest.approx(0.45)
     assert summary.count_correct_rate == pytest.approx(1.0)  # 2 == 2 and 0 == 0
     assert summary.false_object_rate == pytest.approx(0.5)
+
+
+def test_misses_are_split_by_the_clause_of_the_criterion_they_fail():
+    g1 = box_to_mask((0, 0, 9, 9), SHAPE)  # 100 px each
+    g2 = box_to_mask((20, 0, 29, 9), SHAPE)
+    g3 = box_to_mask((0, 20, 9, 29), SHAPE)
+    g4 = box_to_mask((20, 20, 29, 29), SHAPE)
+    detected = [
+        box_to_mask((0, 0, 8, 9), SHAPE),  # g1: IoU 0.9 -> detected
+        box_to_mask((20, 0, 23, 9), SHAPE),  # g2: 40 px, all inside: IoU 0.4 -> too small
+        box_to_mask((0, 15, 19, 34), SHAPE),  # g3: 100 of 400 px inside -> spills out
+    ]  # g4: nothing overlaps it -> not found
+    s = score_window(detected, [g1, g2, g3, g4], truth_events=[500, 60, 80, 10])
+    assert s.outcomes == ("detected", "too_small", "spills_out", "not_found")
+    assert s.n_detected_ok == 1
+    summary = summarize([s])
+    assert summary.detection_rate == pytest.approx(0.25)
+    assert (summary.missed_not_found, summary.missed_too_small, summary.missed_spills_out) == pytest.approx(
+        (0.25, 0.25, 0.25))
+    # g4 fired 10 events (< 50): sparse; the other three are dense, one detected.
+    assert summary.sparse_share == pytest.approx(0.25)
+    assert summary.detection_rate_dense == pytest.approx(1 / 3)
+
+
+def test_detection_outcome_matches_detection_success():
+    g = box_to_mask((5, 5, 14, 14), SHAPE)
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        x0, y0 = rng.integers(0, 30, 2)
+        w, h = rng.integers(1, 20, 2)
+        d = box_to_mask((x0, y0, x0 + w, y0 + h), SHAPE)
+        assert (detection_outcome(d, g) == "detected") == detection_success(d, g)
+    assert detection_outcome(None, g) == "not_found"
+
+
+def test_summary_without_event_counts_leaves_the_sparse_figures_unknown():
+    g = box_to_mask((0, 0, 9, 9), SHAPE)
+    summary = summarize([score_window([], [g])])
+    assert summary.missed_not_found == 1.0
+    assert np.isnan(summary.sparse_share) and np.isnan(summary.detection_rate_dense)
+    with pytest.raises(ValueError, match="1 event counts for 2 truth objects"):
+        score_window([], [g, g], truth_events=[5])
 
 
 def test_convex_hull_mask_of_square_corners():

@@ -10,6 +10,7 @@ import pytest
 from evseg.cli import main
 from evseg.errors import ConfigError
 from evseg.events import EventStream
+from evseg.metrics import summarize
 from evseg.pipeline import MotionSegmentationPipeline, PipelineConfig, load_flow_file
 from evseg.results import load_result
 
@@ -729,3 +730,24 @@ def test_eval_pipeline_table_adds_the_pooled_rows_with_ground_truth_flow(monkeyp
     assert [r["scene"] for r in rows] == ["eed_like #1000 learned", "**scenes with objects**",
                                           "**scenes with objects, ground-truth flow**"]
     assert rows[-1]["flow"] == "precomputed"
+
+
+def test_evaluate_recording_counts_each_truth_objects_own_events(sim):
+    """The scores of evaluate_recording carry, per visible ground-truth object, the events the
+    simulator labelled with its id in that window (what the table's 'under 50 events' and
+    'detection rate, >= 50 events' columns use), and one outcome per object."""
+    from evseg.pipeline_eval import evaluate_recording
+
+    rec, _ = sim
+    ev = evaluate_recording(rec, PipelineConfig(flow="precomputed"), keep_results=True)
+    assert len(ev.scores) == len(ev.results) == 4
+    for score, res in zip(ev.scores, ev.results):
+        truth = rec.window_truth(res.t0_us, res.t1_us)
+        ids = [oid for oid in truth.object_ids if oid in truth.boxes]
+        t = rec.stream.events["t"]
+        in_window = (t >= res.t0_us) & (t < res.t1_us)
+        assert score.truth_events == tuple(int(np.sum(in_window & (rec.label == oid))) for oid in ids)
+        assert len(score.outcomes) == score.n_truth and score.outcomes.count("detected") == score.n_detected_ok
+    s = summarize(ev.scores)
+    assert s.detection_rate + s.missed_not_found + s.missed_too_small + s.missed_spills_out == pytest.approx(1.0)
+    assert 0.0 <= s.sparse_share <= 1.0
