@@ -120,16 +120,19 @@ def evaluate_pipeline(quick: bool = False, flow: str = "learned", seeds=None, ov
 
 
 def evaluate_pipeline_and_oracle(quick: bool = False, model_path: str | None = None,
-                                 slow_edges: bool = False, mirrors: int = 1, tracked_mirrors: int = 1) -> list[dict]:
+                                 slow_edges: bool = False, mirrors: int = 1, tracked_mirrors: int = 1,
+                                 seeds=None, overrides: dict | None = None) -> list[dict]:
     """``evseg eval pipeline``: :func:`evaluate_pipeline` with the learned flow (``model_path``,
     default the shipped model; every scene's row and the pooled rows), then the pooled rows of
     the same scenes run through the same pipeline with the simulator's ground-truth normal flow
     (``flow="precomputed"``), which tell what the flow's errors cost from what the segmentation
     misses by itself. ``slow_edges``, ``mirrors``, ``tracked_mirrors``:
-    :class:`~evseg.pipeline.PipelineConfig`'s, for the learned flow."""
-    rows = evaluate_pipeline(quick, model_path=None if model_path is None else str(model_path), slow_edges=slow_edges,
+    :class:`~evseg.pipeline.PipelineConfig`'s, for the learned flow; ``seeds``, ``overrides``:
+    :func:`evaluate_pipeline`'s, for both runs (``evseg eval pipeline --seeds --set``)."""
+    rows = evaluate_pipeline(quick, seeds=seeds, overrides=overrides,
+                             model_path=None if model_path is None else str(model_path), slow_edges=slow_edges,
                              mirrors=mirrors, tracked_mirrors=tracked_mirrors)
-    for r in evaluate_pipeline(quick, flow="precomputed"):
+    for r in evaluate_pipeline(quick, flow="precomputed", seeds=seeds, overrides=overrides):
         if r["scene"].startswith("**"):
             rows.append({**r, "scene": r["scene"][:-2] + ", ground-truth flow**"})
     return rows

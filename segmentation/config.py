@@ -386,7 +386,14 @@ def with_overrides(cfg: SegmentationConfig, overrides: dict | None, where: str) 
     unknown = sorted(set(overrides) - {f.name for f in dataclasses.fields(SegmentationConfig)})
     if unknown:
         raise ConfigError(f"{where}: unknown segmentation parameter(s) {unknown}")
-    return dataclasses.replace(cfg, **overrides)
+    # The same type checks as a YAML file's fields (a string for a number fails here, not deep
+    # inside a comparison in the config's own checks).
+    defaults = SegmentationConfig()
+    values = {k: _coerce(k, v, getattr(defaults, k), where) for k, v in overrides.items()}
+    try:
+        return dataclasses.replace(cfg, **values)
+    except ConfigError as exc:
+        raise ConfigError(f"{where}: {exc}") from None
 
 
 def load_segmentation_config(name_or_path: str | Path) -> SegmentationConfig:

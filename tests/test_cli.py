@@ -172,3 +172,40 @@ def test_flow_baseline_refuses_learned_flow_options(tmp_path, capsys):
         assert capsys.readouterr().err.strip() == (
             f"evseg flow: error: --baseline and {option[0]} exclude each other (both are about the learned flow)")
         assert not out.exists()
+
+
+def test_seeds_and_set_options_reach_the_simulated_evaluations(fake_evaluations, monkeypatch, tmp_path, capsys):
+    """`evseg eval seg|pipeline --seeds 900-902,950 --set FIELD=VALUE` evaluates other scenes
+    (validation) with segmentation parameters changed on every preset: the options reach the
+    evaluation functions parsed (ranges inclusive, values as YAML)."""
+    import evseg.segmentation.evaluate as seg_eval
+
+    seen = fake_evaluations
+    monkeypatch.setattr(seg_eval, "evaluate_oracle",
+                        lambda quick, **options: seen.__setitem__("seg", options) or [{"scene": "all"}])
+    out = str(tmp_path / "t.md")
+    for target in ("seg", "pipeline"):
+        assert main(["eval", target, "--seeds", "900-902,950", "--set", "lambda_m=60",
+                     "--set", "mask_method=hull", "--out", out]) == 0
+        assert seen[target] == {"seeds": [900, 901, 902, 950], "overrides": {"lambda_m": 60, "mask_method": "hull"}}
+    capsys.readouterr()
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["eval", "seg", "--seeds", "900-9x"], "--seeds: '900-9x' is not a seed or a range A-B (e.g. 900-909)"),
+    (["eval", "seg", "--seeds", "910-900"], "--seeds: range '910-900' runs backwards"),
+    (["eval", "seg", "--seeds", "900,900"], "--seeds: '900,900' must name distinct non-negative seeds"),
+    (["eval", "flow", "--seeds", "900"], "--seeds applies to seg, pipeline, not to 'flow' (it runs fixed scenes or recordings)"),
+    (["eval", "pipeline", "--seeds", "40-42"], "--seeds: [40, 41, 42] are below 900; the normal-flow model trained on "
+                                                "scene seeds 0-47, so use validation seeds (900-999) or the held-out "
+                                                "ones (>= 1000, the default)"),
+    (["eval", "seg", "--set", "lambda_m"], "--set: expected FIELD=VALUE, got 'lambda_m'"),
+    (["eval", "seg", "--set", "lambda_m=[1"], "--set: cannot read the value of 'lambda_m=[1'"),
+    (["eval", "pipeline-real", "--set", "lambda_m=60"], "--set applies to seg, pipeline, not to 'pipeline-real' "
+                                                         "(it has no segmentation presets to change)"),
+    (["eval", "seg", "--quick", "--set", "lambda_m=abc"], "evaluate_oracle: field 'lambda_m' must be float, got 'abc'"),
+    (["eval", "seg", "--quick", "--set", "lambda_mm=60"], "evaluate_oracle: unknown segmentation parameter(s) ['lambda_mm']"),
+])
+def test_bad_seeds_or_settings_are_one_line_errors(argv, message, capsys):
+    assert main(argv) == 2
+    assert capsys.readouterr().err.strip() == f"evseg eval: error: {message}"

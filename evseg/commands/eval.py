@@ -39,6 +39,13 @@ TRACKED_MIRRORS_TARGETS = ("pipeline", "pipeline-real", "static")
 # Targets whose function takes ``slow_edges`` (the pipeline's learned flow with the slow-edge look).
 SLOW_EDGES_TARGETS = ("pipeline", "pipeline-real", "static")
 
+# Targets whose function takes ``seeds`` and ``overrides`` (simulated scenes, segmentation presets).
+SETTINGS_TARGETS = ("seg", "pipeline")
+
+FIRST_VALIDATION_SEED = 900
+"""The shipped normal-flow model trained on scene seeds 0-47 (``configs/train/default.yaml``):
+``evseg eval pipeline --seeds`` refuses seeds below this, whose figures would flatter it."""
+
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("target", choices=sorted(TARGETS), help="what to evaluate")
@@ -55,6 +62,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--tracked-mirrors", type=int, choices=[1, 2, 4, 8], default=1,
                    help="the pipeline's learned flow with this many mirror looks inside the boxes the object "
                         f"tracks predict (evseg segment --tracked-mirrors); targets: {', '.join(TRACKED_MIRRORS_TARGETS)}")
+    p.add_argument("--seeds", default=None, metavar="SEEDS",
+                   help="scene seeds instead of the held-out ones, e.g. 900-909 or 900,905 (validation: "
+                        f"choose settings on these, never on the held-out seeds >= 1000); targets: {', '.join(SETTINGS_TARGETS)}")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="FIELD=VALUE",
+                   help="a segmentation parameter set on every preset (SegmentationConfig field, YAML value; "
+                        f"repeatable), e.g. --set lambda_m=60; targets: {', '.join(SETTINGS_TARGETS)}")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -69,8 +82,68 @@ def run(args: argparse.Namespace) -> int:
     if args.tracked_mirrors != 1:
         options["tracked_mirrors"] = _only_for(args.target, "--tracked-mirrors", TRACKED_MIRRORS_TARGETS,
                                                args.tracked_mirrors, "it has no object tracks")
+    if args.seeds is not None:
+        seeds = _only_for(args.target, "--seeds", SETTINGS_TARGETS, parse_seeds(args.seeds),
+                          "it runs fixed scenes or recordings")
+        low = [s for s in seeds if s < FIRST_VALIDATION_SEED]
+        if args.target == "pipeline" and low:
+            from evseg.errors import EvsegError
+            raise EvsegError(f"--seeds: {low[:5]} are below {FIRST_VALIDATION_SEED}; the normal-flow model "
+                             "trained on scene seeds 0-47, so use validation seeds (900-999) or the held-out "
+                             "ones (>= 1000, the default)")
+        options["seeds"] = seeds
+    if args.overrides:
+        options["overrides"] = _only_for(args.target, "--set", SETTINGS_TARGETS, parse_overrides(args.overrides),
+                                         "it has no segmentation presets to change")
     emit_table(fn(quick=args.quick, **options), args.out)
     return 0
+
+
+def parse_seeds(text: str) -> list[int]:
+    """Scene seeds from ``"900-909"`` (inclusive), ``"900,905"`` or a mix (``"900-902,950"``).
+
+    >>> parse_seeds("900-902,950")
+    [900, 901, 902, 950]
+    """
+    from evseg.errors import EvsegError
+
+    seeds: list[int] = []
+    for part in text.split(","):
+        lo, sep, hi = part.strip().partition("-")
+        try:
+            a = int(lo)
+            b = int(hi) if sep else a
+        except ValueError:
+            raise EvsegError(f"--seeds: '{part.strip()}' is not a seed or a range A-B (e.g. 900-909)") from None
+        if b < a:
+            raise EvsegError(f"--seeds: range '{part.strip()}' runs backwards")
+        seeds += range(a, b + 1)
+    if not seeds or min(seeds) < 0 or len(set(seeds)) != len(seeds):
+        raise EvsegError(f"--seeds: '{text}' must name distinct non-negative seeds")
+    return seeds
+
+
+def parse_overrides(items: list[str]) -> dict:
+    """``["lambda_m=60", "mask_method=hull"]`` -> ``{"lambda_m": 60, "mask_method": "hull"}``
+    (values parsed as YAML; field names are checked by the evaluation, before any scene runs).
+
+    >>> parse_overrides(["lambda_m=60", "occlusion_gap_px=24.5"])
+    {'lambda_m': 60, 'occlusion_gap_px': 24.5}
+    """
+    import yaml
+
+    from evseg.errors import EvsegError
+
+    out = {}
+    for item in items:
+        field, sep, value = item.partition("=")
+        if not sep or not field.strip() or not value.strip():
+            raise EvsegError(f"--set: expected FIELD=VALUE, got '{item}'")
+        try:
+            out[field.strip()] = yaml.safe_load(value)
+        except yaml.YAMLError:
+            raise EvsegError(f"--set: cannot read the value of '{item}'") from None
+    return out
 
 
 def _only_for(target: str, flag: str, targets: tuple[str, ...], value, why: str):

@@ -4,7 +4,7 @@ import pytest
 
 from evseg.errors import ConfigError
 from evseg.segmentation import SegmentationConfig, load_segmentation_config
-from evseg.segmentation.config import preset_names
+from evseg.segmentation.config import preset_names, with_overrides
 
 
 def test_presets_load():
@@ -79,3 +79,20 @@ def test_static_camera_settings(tmp_path):
         SegmentationConfig(min_cell_events=0)
     with pytest.raises(ConfigError, match="still_px_s"):
         SegmentationConfig(still_px_s=0.0)
+
+
+def test_overrides_are_checked_like_yaml_fields():
+    """with_overrides (evaluate_oracle / evaluate_pipeline overrides, `evseg eval --set`) keeps
+    the preset's other fields, turns an int into a float field's float, and names the caller
+    and the field for an unknown name, a wrong type or a value the config refuses."""
+    base = load_segmentation_config("eed_like")
+    cfg = with_overrides(base, {"lambda_m": 60, "mask_method": "dilate"}, "here")
+    assert cfg.lambda_m == 60.0 and isinstance(cfg.lambda_m, float) and cfg.mask_method == "dilate"
+    assert cfg.cell_px == base.cell_px and cfg.tracked_label_cost == base.tracked_label_cost
+    assert with_overrides(base, None, "here") is base
+    with pytest.raises(ConfigError, match=r"^here: unknown segmentation parameter\(s\) \['lamda_m'\]$"):
+        with_overrides(base, {"lamda_m": 60}, "here")
+    with pytest.raises(ConfigError, match=r"^here: field 'lambda_m' must be float, got 'abc'$"):
+        with_overrides(base, {"lambda_m": "abc"}, "here")
+    with pytest.raises(ConfigError, match=r"^here: SegmentationConfig.lambda_m must be >= 0, got -1.0$"):
+        with_overrides(base, {"lambda_m": -1}, "here")
