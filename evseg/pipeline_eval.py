@@ -28,6 +28,10 @@ SEGMENTATION_PRESET = {
 }
 
 
+SEGMENTATION_PRESET_ORDER = ("eed_like", "evimo_like", "driving_like", "ego_only")
+"""The simulator presets of ``evseg eval pipeline``, in table order."""
+
+
 @dataclass
 class RecordingEvaluation:
     """Scores of one simulated recording, window by window."""
@@ -80,7 +84,7 @@ def evaluate_recording(rec, config, keep_results: bool = False) -> RecordingEval
 
 
 def evaluate_pipeline(quick: bool = False, flow: str = "learned", seeds=None, overrides: dict | None = None,
-                      **pipeline_options) -> list[dict]:
+                      presets=None, **pipeline_options) -> list[dict]:
     """The simulated benchmark suite: one row per scene, then one mean row per preset and overall.
 
     Full: 8 seeds x (eed_like, evimo_like, driving_like) + 8 ego-motion-only scenes, 300 ms
@@ -88,6 +92,7 @@ def evaluate_pipeline(quick: bool = False, flow: str = "learned", seeds=None, ov
     README's learned-flow validation figures use ``range(900, 910)``; the network was trained on
     seeds < 48). ``overrides``: :class:`~evseg.segmentation.SegmentationConfig` fields set on
     every preset (e.g. ``{"max_object_extent": 0.35}``), as ``evaluate_oracle`` takes them.
+    ``presets``: a subset of the simulator presets (default all four, in their order).
     ``pipeline_options``: further :class:`~evseg.pipeline.PipelineConfig` fields (e.g.
     ``min_track_windows=2``).
     """
@@ -98,7 +103,9 @@ def evaluate_pipeline(quick: bool = False, flow: str = "learned", seeds=None, ov
 
     with_overrides(SegmentationConfig(), overrides, "evaluate_pipeline")  # bad keys fail before any work
 
-    presets = ["eed_like", "evimo_like", "driving_like", "ego_only"]
+    from evseg.segmentation.evaluate import check_presets
+
+    presets = check_presets(presets, list(SEGMENTATION_PRESET_ORDER), "evaluate_pipeline")
     if seeds is None:
         seeds = range(1000, 1002) if quick else range(1000, 1008)
     duration_us = 100_000 if quick else 300_000
@@ -121,18 +128,19 @@ def evaluate_pipeline(quick: bool = False, flow: str = "learned", seeds=None, ov
 
 def evaluate_pipeline_and_oracle(quick: bool = False, model_path: str | None = None,
                                  slow_edges: bool = False, mirrors: int = 1, tracked_mirrors: int = 1,
-                                 seeds=None, overrides: dict | None = None) -> list[dict]:
+                                 seeds=None, overrides: dict | None = None, presets=None) -> list[dict]:
     """``evseg eval pipeline``: :func:`evaluate_pipeline` with the learned flow (``model_path``,
     default the shipped model; every scene's row and the pooled rows), then the pooled rows of
     the same scenes run through the same pipeline with the simulator's ground-truth normal flow
     (``flow="precomputed"``), which tell what the flow's errors cost from what the segmentation
     misses by itself. ``slow_edges``, ``mirrors``, ``tracked_mirrors``:
-    :class:`~evseg.pipeline.PipelineConfig`'s, for the learned flow; ``seeds``, ``overrides``:
-    :func:`evaluate_pipeline`'s, for both runs (``evseg eval pipeline --seeds --set``)."""
-    rows = evaluate_pipeline(quick, seeds=seeds, overrides=overrides,
+    :class:`~evseg.pipeline.PipelineConfig`'s, for the learned flow; ``seeds``, ``overrides``,
+    ``presets``: :func:`evaluate_pipeline`'s, for both runs (``evseg eval pipeline --seeds --set
+    --presets``)."""
+    rows = evaluate_pipeline(quick, seeds=seeds, overrides=overrides, presets=presets,
                              model_path=None if model_path is None else str(model_path), slow_edges=slow_edges,
                              mirrors=mirrors, tracked_mirrors=tracked_mirrors)
-    for r in evaluate_pipeline(quick, flow="precomputed", seeds=seeds, overrides=overrides):
+    for r in evaluate_pipeline(quick, flow="precomputed", seeds=seeds, overrides=overrides, presets=presets):
         if r["scene"].startswith("**"):
             rows.append({**r, "scene": r["scene"][:-2] + ", ground-truth flow**"})
     return rows

@@ -128,7 +128,20 @@ def evaluate_scene(
     }
 
 
-def evaluate_oracle(quick: bool = False, seeds=None, overrides: dict | None = None) -> list[dict]:
+def check_presets(presets, known: list[str], where: str) -> list[str]:
+    """``presets`` (None = all ``known``) as a list in ``known``'s order; an unknown name is a
+    :class:`~evseg.errors.ConfigError` naming ``where`` and the names it knows."""
+    from evseg.errors import ConfigError
+
+    if presets is None:
+        return list(known)
+    unknown = [p for p in presets if p not in known]
+    if unknown or not presets:
+        raise ConfigError(f"{where}: unknown or no simulator preset(s) {unknown or list(presets)}; known: {known}")
+    return [p for p in known if p in presets]
+
+
+def evaluate_oracle(quick: bool = False, seeds=None, overrides: dict | None = None, presets=None) -> list[dict]:
     """Oracle evaluation over held-out scenes: one row per scene, then pooled rows per preset
     and over all scenes (metrics over the pooled windows; timings are medians of the scenes'
     median per-window times).
@@ -137,12 +150,14 @@ def evaluate_oracle(quick: bool = False, seeds=None, overrides: dict | None = No
     with clean flow and with 30 % outliers. Quick: 1 seed per preset, 50 ms, clean only.
     ``seeds``: other scene seeds (the README's validation figures use ``range(900, 921)``);
     ``overrides``: :class:`SegmentationConfig` fields set on every preset (e.g.
-    ``{"contrast_min_weight": 1.0}``), to compare settings the way the README does.
+    ``{"contrast_min_weight": 1.0}``), to compare settings the way the README does;
+    ``presets``: a subset of the simulator presets (default all three).
     """
     from evseg.metrics import summarize
     from evseg.segmentation.config import with_overrides
 
     with_overrides(SegmentationConfig(), overrides, "evaluate_oracle")  # bad keys fail before any work
+    names = check_presets(presets, list(PRESETS), "evaluate_oracle")
     if seeds is None:
         seeds = [1000] if quick else list(range(1000, 1007))
     seeds = [int(s) for s in seeds]
@@ -151,12 +166,12 @@ def evaluate_oracle(quick: bool = False, seeds=None, overrides: dict | None = No
     rows = []
     for frac in fractions:
         block = []
-        for preset in PRESETS:
+        for preset in names:
             for seed in seeds:
                 cfg = with_overrides(load_segmentation_config(PRESETS[preset]), overrides, "evaluate_oracle")
                 block.append(evaluate_scene(preset, seed, duration, outlier_fraction=frac, config=cfg))
         rows += block
-        groups = [(p, [r for r in block if r["preset"] == p]) for p in PRESETS] + [("ALL", block)]
+        groups = [(p, [r for r in block if r["preset"] == p]) for p in names] + [("ALL", block)]
         for name, members in groups:
             s = summarize([sc for r in members for sc in r["_scores"]])
             rows.append({

@@ -174,7 +174,7 @@ def test_flow_baseline_refuses_learned_flow_options(tmp_path, capsys):
         assert not out.exists()
 
 
-def test_seeds_and_set_options_reach_the_simulated_evaluations(fake_evaluations, monkeypatch, tmp_path, capsys):
+def test_seeds_set_and_presets_options_reach_the_simulated_evaluations(fake_evaluations, monkeypatch, tmp_path, capsys):
     """`evseg eval seg|pipeline --seeds 900-902,950 --set FIELD=VALUE` evaluates other scenes
     (validation) with segmentation parameters changed on every preset: the options reach the
     evaluation functions parsed (ranges inclusive, values as YAML)."""
@@ -186,8 +186,9 @@ def test_seeds_and_set_options_reach_the_simulated_evaluations(fake_evaluations,
     out = str(tmp_path / "t.md")
     for target in ("seg", "pipeline"):
         assert main(["eval", target, "--seeds", "900-902,950", "--set", "lambda_m=60",
-                     "--set", "mask_method=hull", "--out", out]) == 0
-        assert seen[target] == {"seeds": [900, 901, 902, 950], "overrides": {"lambda_m": 60, "mask_method": "hull"}}
+                     "--set", "mask_method=hull", "--presets", "driving_like, eed_like", "--out", out]) == 0
+        assert seen[target] == {"seeds": [900, 901, 902, 950], "overrides": {"lambda_m": 60, "mask_method": "hull"},
+                                "presets": ["driving_like", "eed_like"]}
     capsys.readouterr()
 
 
@@ -205,6 +206,12 @@ def test_seeds_and_set_options_reach_the_simulated_evaluations(fake_evaluations,
                                                          "(it has no segmentation presets to change)"),
     (["eval", "seg", "--quick", "--set", "lambda_m=abc"], "evaluate_oracle: field 'lambda_m' must be float, got 'abc'"),
     (["eval", "seg", "--quick", "--set", "lambda_mm=60"], "evaluate_oracle: unknown segmentation parameter(s) ['lambda_mm']"),
+    (["eval", "flow", "--presets", "eed_like"], "--presets applies to seg, pipeline, not to 'flow' (it runs fixed "
+                                                 "scenes or recordings)"),
+    (["eval", "seg", "--quick", "--presets", "eed"], "evaluate_oracle: unknown or no simulator preset(s) ['eed']; "
+                                                      "known: ['eed_like', 'evimo_like', 'driving_like']"),
+    (["eval", "pipeline", "--quick", "--presets", ","], "evaluate_pipeline: unknown or no simulator preset(s) []; "
+                                                         "known: ['eed_like', 'evimo_like', 'driving_like', 'ego_only']"),
 ])
 def test_bad_seeds_or_settings_are_one_line_errors(argv, message, capsys):
     assert main(argv) == 2

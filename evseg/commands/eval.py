@@ -65,6 +65,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seeds", default=None, metavar="SEEDS",
                    help="scene seeds instead of the held-out ones, e.g. 900-909 or 900,905 (validation: "
                         f"choose settings on these, never on the held-out seeds >= 1000); targets: {', '.join(SETTINGS_TARGETS)}")
+    p.add_argument("--presets", default=None, metavar="NAMES",
+                   help="only these simulator presets, comma-separated (e.g. eed_like,ego_only); "
+                        f"targets: {', '.join(SETTINGS_TARGETS)}")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="FIELD=VALUE",
                    help="a segmentation parameter set on every preset (SegmentationConfig field, YAML value; "
                         f"repeatable), e.g. --set lambda_m=60; targets: {', '.join(SETTINGS_TARGETS)}")
@@ -92,6 +95,10 @@ def run(args: argparse.Namespace) -> int:
                              "trained on scene seeds 0-47, so use validation seeds (900-999) or the held-out "
                              "ones (>= 1000, the default)")
         options["seeds"] = seeds
+    if args.presets is not None:
+        options["presets"] = _only_for(args.target, "--presets", SETTINGS_TARGETS,
+                                       [p.strip() for p in args.presets.split(",") if p.strip()],
+                                       "it runs fixed scenes or recordings")
     if args.overrides:
         options["overrides"] = _only_for(args.target, "--set", SETTINGS_TARGETS, parse_overrides(args.overrides),
                                          "it has no segmentation presets to change")

@@ -45,3 +45,13 @@ def test_evaluate_oracle_takes_other_seeds_and_setting_overrides():
     assert [r["seed"] for r in scenes] == [900, 900, 900]  # one scene per preset
     with pytest.raises(ConfigError, match="lamda_p"):
         evaluate_oracle(quick=True, seeds=[900], overrides={"lamda_p": 1.0})
+
+
+def test_oracle_evaluation_of_a_preset_subset():
+    """evaluate_oracle(presets=[...]) runs only those presets (`evseg eval seg --presets`): one
+    scene row, its preset's pooled row and the ALL row, which pools the same windows."""
+    from evseg.segmentation.evaluate import evaluate_oracle
+
+    rows = evaluate_oracle(quick=True, presets=["eed_like"])
+    assert [r["preset"] for r in rows] == ["eed_like", "eed_like (pooled)", "ALL (pooled)"]
+    assert rows[1]["detection_rate"] == rows[2]["detection_rate"] == rows[0]["detection_rate"]
