@@ -10,9 +10,9 @@ event. The outlier variant replaces a share of the flows (deterministic per scen
 vectors, uniform in the square of side twice the 90th percentile of |n|.
 
 A ground-truth object counts in a window when it is visible AND produced at least
-``MIN_TRUTH_EVENTS`` events in the window: an object that slid in by a few pixels (a dozen
-events) cannot be segmented from events by any method, and the simulator's mask would still
-count it. Windows in which the truth has no such object still count for the object-count rate.
+``MIN_OBJECT_EVENTS`` (:mod:`evseg.metrics`) events in the window: an object that slid in by
+a few pixels (a dozen events) cannot be segmented from events by any method, and the
+simulator's mask would still count it. Windows in which the truth has no such object still count for the object-count rate.
 
 ``detection_ceiling`` is the detection rate of a perfect labelling: the share of counted
 objects for which the box of exactly the object's own events meets the detection criterion.
@@ -27,9 +27,6 @@ import numpy as np
 from evseg.metrics import MIN_OBJECT_EVENTS
 from evseg.segmentation.config import SegmentationConfig, load_segmentation_config
 from evseg.segmentation.solver import segment_normal_flow
-
-MIN_TRUTH_EVENTS = MIN_OBJECT_EVENTS
-"""A ground-truth object needs this many events in a window to be counted there."""
 
 # simulator preset -> segmentation preset
 PRESETS = {"eed_like": "eed_like", "evimo_like": "evimo_like", "driving_like": "outdoor_like"}
@@ -98,7 +95,7 @@ def evaluate_scene(
         n_ev = np.bincount(np.maximum(rec.label[sl], 0).astype(np.int64),
                            minlength=max(truth.object_ids, default=0) + 1)
         visible = [k for k, oid in enumerate(truth.object_ids)
-                   if oid in truth.boxes and n_ev[oid] >= MIN_TRUTH_EVENTS]
+                   if oid in truth.boxes and n_ev[oid] >= MIN_OBJECT_EVENTS]
         truth_masks = [truth.masks[k] for k in visible]
         truth_boxes = [truth.boxes[truth.object_ids[k]] for k in visible]
         labels = rec.label[sl]

@@ -46,19 +46,18 @@ def _fit_threads(fn):
 
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
-        # inference_mode: no autograd bookkeeping on the ~20 small tensor ops of an LM iteration
-        # (same floats; the captured fits of the 1 M events/s benchmark stream took 1.08 instead
-        # of 1.18 ms each).
         before = torch.get_num_threads()
-        if before == FIT_THREADS:
-            with torch.inference_mode():
-                return fn(*args, **kwargs)
-        torch.set_num_threads(FIT_THREADS)
+        if before != FIT_THREADS:
+            torch.set_num_threads(FIT_THREADS)
         try:
+            # inference_mode: no autograd bookkeeping on the ~20 small tensor ops of an LM
+            # iteration (same floats; the captured fits of the 1 M events/s benchmark stream took
+            # 1.08 instead of 1.18 ms each).
             with torch.inference_mode():
                 return fn(*args, **kwargs)
         finally:
-            torch.set_num_threads(before)
+            if before != FIT_THREADS:
+                torch.set_num_threads(before)
 
     return wrapper
 

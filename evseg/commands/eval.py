@@ -13,6 +13,7 @@ import argparse
 from pathlib import Path
 
 from evseg.commands.bench import emit_table, model_options, resolve_target
+from evseg.errors import EvsegError
 
 HELP = "evaluate accuracy on held-out simulated scenes and write a markdown table"
 
@@ -90,7 +91,6 @@ def run(args: argparse.Namespace) -> int:
                           "it runs fixed scenes or recordings")
         low = [s for s in seeds if s < FIRST_VALIDATION_SEED]
         if args.target == "pipeline" and low:
-            from evseg.errors import EvsegError
             raise EvsegError(f"--seeds: {low[:5]} are below {FIRST_VALIDATION_SEED}; the normal-flow model "
                              "trained on scene seeds 0-47, so use validation seeds (900-999) or the held-out "
                              "ones (>= 1000, the default)")
@@ -112,8 +112,6 @@ def parse_seeds(text: str) -> list[int]:
     >>> parse_seeds("900-902,950")
     [900, 901, 902, 950]
     """
-    from evseg.errors import EvsegError
-
     seeds: list[int] = []
     for part in text.split(","):
         lo, sep, hi = part.strip().partition("-")
@@ -139,8 +137,6 @@ def parse_overrides(items: list[str]) -> dict:
     """
     import yaml
 
-    from evseg.errors import EvsegError
-
     out = {}
     for item in items:
         field, sep, value = item.partition("=")
@@ -156,7 +152,5 @@ def parse_overrides(items: list[str]) -> dict:
 def _only_for(target: str, flag: str, targets: tuple[str, ...], value, why: str):
     """``value`` when ``target`` is one of ``targets``, else a one-line error naming ``flag``."""
     if target not in targets:
-        from evseg.errors import EvsegError
-
-        raise EvsegError(f"{flag} applies to {', '.join(targets)}, not to '{target}' ({why})")
+            raise EvsegError(f"{flag} applies to {', '.join(targets)}, not to '{target}' ({why})")
     return value
