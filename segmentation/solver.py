@@ -236,10 +236,10 @@ def segment_prepared(
     timings["initialization_cpu"] += (time.process_time() - cpu) * 1e3
     if ready:  # sampled on another thread: its time still counts in this window's stages
         timings["initialization"] += sampled.sampling_ms
-        timings["initialization_cpu"] += sampled.sampling_ms
+        timings["initialization_cpu"] += sampled.sampling_cpu_ms
     else:  # sampled and fitted just now: the fits count under labeling and fitting below
         timings["initialization"] -= sampled.fitting_ms
-        timings["initialization_cpu"] -= sampled.fitting_ms
+        timings["initialization_cpu"] -= sampled.fitting_cpu_ms
 
     tic, cpu = time.perf_counter(), time.process_time()
     labels = np.zeros(m, dtype=np.int64)
@@ -326,7 +326,7 @@ def segment_prepared(
             labels, models = remap[labels], models[keep]
     # Round 0's fits of the sampled candidates count here wherever they ran.
     timings["labeling_fitting"] = (time.perf_counter() - tic) * 1e3 + sampled.fitting_ms
-    timings["labeling_fitting_cpu"] = (time.process_time() - cpu) * 1e3 + sampled.fitting_ms
+    timings["labeling_fitting_cpu"] = (time.process_time() - cpu) * 1e3 + sampled.fitting_cpu_ms
 
     tic, cpu = time.perf_counter(), time.process_time()
     if sensor_size is not None and len(models) > 1 and not cfg.static_camera:

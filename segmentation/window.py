@@ -105,6 +105,8 @@ class SampledCandidates:
         models: (n', 4) fitted models, n' <= n_asked. data: (M, n') their data costs.
         sampling_ms, fitting_ms: wall time of the sampling and of the fits, ms (reported under
             'initialization' and 'labeling_fitting' like the rest of those stages).
+        sampling_cpu_ms, fitting_cpu_ms: the process CPU time over the same spans, ms (the
+            stages' '_cpu' timings; they include other threads of the process).
     """
 
     n_asked: int
@@ -112,6 +114,8 @@ class SampledCandidates:
     data: np.ndarray
     sampling_ms: float
     fitting_ms: float
+    sampling_cpu_ms: float
+    fitting_cpu_ms: float
 
 
 @dataclass(frozen=True)
@@ -184,7 +188,7 @@ def sample_candidates(prepared: PreparedWindow, n: int) -> SampledCandidates:
     :mod:`.solver`). Needs nothing of the previous window: each candidate's fit sees only
     its own voters, so the result does not depend on the predicted candidates beside it."""
     pw = prepared
-    tic = time.perf_counter()
+    tic, cpu = time.perf_counter(), time.process_time()
     bin_px_s = pw.config.sampling_bin * pw.sigma
     separation = pw.config.min_candidate_separation * pw.sigma
     sampled = fast_sampling(pw.vote_x[pw.voting], pw.vote_y[pw.voting], n, bin_px_s, separation)
@@ -192,15 +196,16 @@ def sample_candidates(prepared: PreparedWindow, n: int) -> SampledCandidates:
         extra = farthest_candidates(pw.graph.nx, pw.graph.ny, sampled[:, 2:], pw.config.n_sampled_normal,
                                     bin_px_s, separation)
         sampled = np.concatenate([sampled, extra])
-    sampling_ms = (time.perf_counter() - tic) * 1e3
-    tic = time.perf_counter()
+    sampling_ms, sampling_cpu_ms = (time.perf_counter() - tic) * 1e3, (time.process_time() - cpu) * 1e3
+    tic, cpu = time.perf_counter(), time.process_time()
     if len(pw.graph) == 0:
-        return SampledCandidates(n, np.empty((0, 4)), np.empty((0, 0)), sampling_ms, 0.0)
+        return SampledCandidates(n, np.empty((0, 4)), np.empty((0, 0)), sampling_ms, 0.0, sampling_cpu_ms, 0.0)
     fit_on = round0_voters(pw.vote_x, pw.vote_y, pw.voting, sampled[:, 2:], bin_px_s)
     models, data = refit_to_labels(sampled, window_costs(pw, sampled), fit_on, pw.xr, pw.yr, pw.graph,
                                    lm_kwargs(pw), lambda mod: window_costs(pw, mod), np.arange(len(pw.graph)),
                                    always=True)
-    return SampledCandidates(n, models, data, sampling_ms, (time.perf_counter() - tic) * 1e3)
+    return SampledCandidates(n, models, data, sampling_ms, (time.perf_counter() - tic) * 1e3,
+                             sampling_cpu_ms, (time.process_time() - cpu) * 1e3)
 
 
 def with_sampled_candidates(prepared: PreparedWindow, counts: tuple[int, ...] | None = None) -> PreparedWindow:

@@ -49,6 +49,25 @@ def test_two_objects_are_found_with_their_models(seed):
         assert r.timings[key] >= 0
 
 
+def test_cpu_timings_count_cpu_time_only(monkeypatch):
+    """The '_cpu' stage timings (`evseg bench seg`'s cpu columns) are CPU time: a wall clock
+    that runs far ahead of the CPU, as on a machine where other processes take the cores,
+    must not leak into them (round 0's fits were moved from initialization to labeling and
+    fitting by their wall time, which made initialization_cpu negative under load)."""
+    import itertools
+    import time
+
+    s = synthetic_scene(n_flows=1500, n_objects=2, seed=0)
+    fake = itertools.count(0.0, 1000.0)  # each perf_counter() call: 1000 s later
+    monkeypatch.setattr(time, "perf_counter", lambda: next(fake))
+    t0 = time.process_time()
+    r = segment_normal_flow(s.x, s.y, s.t, s.nx, s.ny, sensor_size=s.sensor_size)
+    cpu_ms = (time.process_time() - t0) * 1e3
+    for key in ("preprocessing_cpu", "initialization_cpu", "labeling_fitting_cpu", "outputs_cpu"):
+        assert 0 <= r.timings[key] <= cpu_ms + 1.0, (key, r.timings[key], cpu_ms)
+    assert r.timings["labeling_fitting"] >= 1e6  # the fake wall clock did run
+
+
 def test_propagate_labels_nearest_node_and_distance_limit():
     s = synthetic_scene(n_flows=1500, n_objects=1, seed=2)
     r = segment_normal_flow(s.x, s.y, s.t, s.nx, s.ny, sensor_size=s.sensor_size)
