@@ -56,13 +56,14 @@ def simulated_stream(rate_ev_s: float, duration_us: int, seed: int = 1100, rel_t
     cfg = load_scene_preset("evimo_like")
     neg_over_pos = cfg.sensor.c_neg / cfg.sensor.c_pos
     tried: list[tuple[float, float]] = []  # (log threshold, log rate)
-    best = None
+    best, best_err = None, np.inf
     for _ in range(max_rounds):
         rec = simulate(cfg, seed=seed, duration_us=duration_us)
         rate = rec.stream.rate_ev_s
-        if best is None or abs(np.log(rate / rate_ev_s)) < abs(np.log(best.stream.rate_ev_s / rate_ev_s)):
-            best = rec
-        if abs(rate / rate_ev_s - 1.0) <= rel_tol:
+        err = abs(rate / rate_ev_s - 1.0)
+        if err < best_err:
+            best, best_err = rec, err
+        if err <= rel_tol:
             break
         tried.append((float(np.log(cfg.sensor.c_pos)), float(np.log(max(rate, 1.0)))))
         slope = -1.0
