@@ -78,9 +78,11 @@ def simulated_stream(rate_ev_s: float, duration_us: int, seed: int = 1100, rel_t
 
 def time_pipeline(path: Path, repeats: int, flow: str = "learned", threads: int | None = None,
                   overlap: bool = True, worker: str = "process", **pipeline_options) -> dict:
-    """Per-stage median / p90 ms per window for one recording file. ``pipeline_options``:
-    further :class:`~evseg.pipeline.PipelineConfig` fields (e.g. ``slow_edges=False``)."""
+    """Per-stage median / p90 ms per window for one recording file, with the events and the
+    median segmentation nodes per window. ``pipeline_options``: further
+    :class:`~evseg.pipeline.PipelineConfig` fields (e.g. ``slow_edges=False``)."""
     per_stage: dict[str, list[float]] = {s: [] for s in STAGES}
+    nodes: list[int] = []
     n_events = n_windows = 0
     pipe = None
     for _ in range(repeats):
@@ -108,6 +110,7 @@ def time_pipeline(path: Path, repeats: int, flow: str = "learned", threads: int 
         n_windows = len(results)
         n_events = sum(len(c) for c in chunks)
         for res in results:
+            nodes.append(0 if res.segmentation is None else len(res.segmentation.node_x))
             tm = res.timings_ms
             tm["read"] = read_s * 1e3 / max(n_windows, 1)
             tm["total"] += tm["read"]
@@ -118,7 +121,8 @@ def time_pipeline(path: Path, repeats: int, flow: str = "learned", threads: int 
     if pipe is not None:
         pipe.close()
     window_ms = PipelineConfig().window_us / 1e3
-    out = {"events/window": n_events / max(n_windows, 1), "windows": n_windows}
+    out = {"events/window": n_events / max(n_windows, 1), "windows": n_windows,
+           "nodes/window": float(np.median(nodes)) if nodes else float("nan")}
     for s in STAGES:
         v = np.asarray(per_stage[s])
         out[f"{s} ms"] = float(np.median(v)) if len(v) else float("nan")

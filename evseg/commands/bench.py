@@ -27,6 +27,7 @@ TARGETS = {
     "seg": "evseg.segmentation.bench:benchmark",
     "pipeline": "evseg.pipeline_bench:benchmark",
     "memory": "evseg.memory_bench:benchmark",
+    "scaling": "evseg.scaling_bench:benchmark",
 }
 
 
