@@ -3,7 +3,7 @@ import math
 import numpy as np
 import pytest
 
-from evseg.scaling_bench import benchmark, growth_exponent
+from evseg.scaling_bench import benchmark, growth_exponent, growth_exponents
 
 
 def test_growth_exponent_reads_linear_and_sublinear_growth():
@@ -14,6 +14,13 @@ def test_growth_exponent_reads_linear_and_sublinear_growth():
     assert growth_exponent(1e3, 5.0, 4e3, 10.0) == pytest.approx(0.5)
     assert math.isnan(growth_exponent(1e3, 5.0, 1e3, 6.0))
     assert math.isnan(growth_exponent(0.0, 5.0, 1e3, 6.0))
+
+
+def test_growth_exponents_are_taken_from_the_first_row():
+    """Against the lowest rate, not the row before: rows at 1x, 2x, 4x the events taking 10,
+    20, 20 ms give 1 and 0.5 (against the row before, the third would read 0)."""
+    e = growth_exponents([1e3, 2e3, 4e3], [10.0, 20.0, 20.0])
+    assert math.isnan(e[0]) and e[1:] == pytest.approx([1.0, 0.5])
 
 
 def test_quick_scaling_table_rises_with_the_event_rate():
