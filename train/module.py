@@ -8,9 +8,10 @@ The module owns one :class:`evseg.veckm_flow.FlowHead` as ``self.head`` (so chec
 Batches come from :class:`evseg.train.data.NormalFlowDataModule`: ``features`` (B, F) float32,
 ``normal_flow`` and ``optical_flow`` (B, 2) float32 px/s with NaN where unknown. Each row is
 trained with the normal-flow loss when its GT normal flow is known (simulated data), otherwise
-with VecKM_flow's loss against its GT optical flow (users' real recordings). The uncertainty
-output is trained with a negative log-likelihood of the realised angular error, so it predicts
-that error (radians).
+with VecKM_flow's loss against its GT optical flow (users' real recordings); with
+``flow_target="optical"`` every row with GT optical flow takes VecKM_flow's loss, as VecKM_flow
+itself is trained. The uncertainty output is trained with a negative log-likelihood of the
+realised error: the angular error (radians) on normal-flow rows.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from evseg.veckm_flow import losses as L
 
 
 UNCERTAINTY_TARGETS = ("angle", "relative_error")
+FLOW_TARGETS = ("normal", "optical")
 
 
 class NormalFlowModule(pl.LightningModule):
@@ -54,7 +56,16 @@ class NormalFlowModule(pl.LightningModule):
         object_weight: weight of a target on an independently moving object (ground-truth
             label >= 1, simulated data) in the normal-flow loss, relative to a background
             target's 1. Objects are a few % of the targets, yet the segmentation needs their
-            flow most: 1 = every target weighs alike (the shipped model).
+            flow most: 1 = every target weighs alike (the shipped model). With
+            ``flow_target="optical"`` it weighs the optical-flow loss alike.
+        flow_target: which ground truth the flow output learns where both are known
+            (simulated data). ``"normal"`` (the shipped model): the normal flow, the optical
+            flow only where no normal flow is known. ``"optical"``: VecKM_flow's loss against
+            the optical flow on every row that has it, which accepts any flow on the circle of
+            normal flows consistent with it (the projection of the optical flow on any
+            direction: where a neighbourhood shows texture the head may give the optical flow
+            itself, where it shows one edge the normal flow); the segmentation's constraint
+            p . u = |p|^2 holds for all of them. The normal-flow metrics are still logged.
     """
 
     def __init__(
@@ -68,6 +79,7 @@ class NormalFlowModule(pl.LightningModule):
         magnitude_balance: float = 0.0,
         uncertainty_target: str = "angle",
         object_weight: float = 1.0,
+        flow_target: str = "normal",
     ):
         super().__init__()
         encoding = EncodingConfig.from_dict(dict(encoding or {})).to_dict()
@@ -78,9 +90,12 @@ class NormalFlowModule(pl.LightningModule):
                                    "optical_flow_weight": optical_flow_weight,
                                    "magnitude_balance": float(magnitude_balance),
                                    "uncertainty_target": uncertainty_target,
-                                   "object_weight": float(object_weight)})
+                                   "object_weight": float(object_weight),
+                                   "flow_target": flow_target})
         if not object_weight > 0:
             raise ConfigError(f"model.object_weight must be > 0, got {object_weight}")
+        if flow_target not in FLOW_TARGETS:
+            raise ConfigError(f"model.flow_target must be one of {', '.join(FLOW_TARGETS)}, got {flow_target!r}")
         if uncertainty_target not in UNCERTAINTY_TARGETS:
             raise ConfigError(f"model.uncertainty_target must be one of {', '.join(UNCERTAINTY_TARGETS)}, "
                              f"got {uncertainty_target!r}")
@@ -100,8 +115,14 @@ class NormalFlowModule(pl.LightningModule):
         log_u = out[:, 2]
         nf = batch["normal_flow"] / self.flow_unit_px_s
         of = batch["optical_flow"] / self.flow_unit_px_s
-        has_nf = torch.isfinite(nf).all(dim=1)
-        has_of = torch.isfinite(of).all(dim=1) & ~has_nf
+        known_nf = torch.isfinite(nf).all(dim=1)
+        if self.hparams.get("flow_target", "normal") == "optical":
+            has_of = torch.isfinite(of).all(dim=1)
+            has_nf = known_nf & ~has_of
+        else:
+            has_nf = known_nf
+            has_of = torch.isfinite(of).all(dim=1) & ~has_nf
+        w_obj = float(self.hparams.get("object_weight", 1.0))
         zero = out.sum() * 0.0  # keeps every parameter in the graph (DDP needs it)
         parts = {"nf": zero, "of": zero, "nll": zero}
         # Error label of the uncertainty output: the angular error (rad) where GT normal flow
@@ -114,7 +135,6 @@ class NormalFlowModule(pl.LightningModule):
             balance = float(self.hparams.get("magnitude_balance", 0.0))
             if balance > 0:
                 per_target = per_target * L.magnitude_weights(nf[has_nf], balance)
-            w_obj = float(self.hparams.get("object_weight", 1.0))
             if w_obj != 1.0 and "is_object" in batch:
                 w = 1.0 + (w_obj - 1.0) * batch["is_object"][has_nf]
                 parts["nf"] = (w * per_target).sum() / w.sum()
@@ -127,7 +147,12 @@ class NormalFlowModule(pl.LightningModule):
             else:
                 err = torch.where(has_nf, ae, err)
         if has_of.any():
-            parts["of"] = L.veckm_optical_flow_loss(pred[has_of], of[has_of]).mean()
+            per_target = L.veckm_optical_flow_loss(pred[has_of], of[has_of])
+            if w_obj != 1.0 and "is_object" in batch:
+                w = 1.0 + (w_obj - 1.0) * batch["is_object"][has_of]
+                parts["of"] = (w * per_target).sum() / w.sum()
+            else:
+                parts["of"] = per_target.mean()
             err = torch.where(has_of, L.optical_flow_error(pred, torch.nan_to_num(of)), err)
         known = has_nf | has_of
         if known.any():
@@ -137,8 +162,9 @@ class NormalFlowModule(pl.LightningModule):
         n_nf, n_of = has_nf.sum(), has_of.sum()
         flow_loss = (n_nf * parts["nf"] + self.hparams.optical_flow_weight * n_of * parts["of"]) / known.sum().clamp(min=1)
         parts["loss"] = flow_loss + self.hparams.uncertainty_weight * parts["nll"]
-        parts["angular_error_deg"] = torch.rad2deg(ae[has_nf]).detach()
-        parts["sign_ok"] = ((pred[has_nf] * nf[has_nf]).sum(dim=1) > 0).float().detach()
+        # Reported against the normal flow wherever it is known, whichever loss trained the row.
+        parts["angular_error_deg"] = torch.rad2deg(ae[known_nf]).detach()
+        parts["sign_ok"] = ((pred[known_nf] * nf[known_nf]).sum(dim=1) > 0).float().detach()
         return parts
 
     def training_step(self, batch: dict, batch_idx: int) -> torch.Tensor:

@@ -128,3 +128,36 @@ def test_object_weight_weighs_object_targets_in_the_normal_flow_loss():
     torch.testing.assert_close(m._losses(batch)["nf"], per.mean())
     with pytest.raises(ValueError, match="object_weight must be > 0"):
         NormalFlowModule(object_weight=0.0)
+
+
+def test_flow_target_optical_trains_every_row_with_optical_flow_by_veckm_flow_s_loss():
+    """flow_target 'optical': rows with both ground truths (simulated) take VecKM_flow's
+    optical-flow loss, not the normal-flow loss, with the object weight applied alike; the
+    angular error against the normal flow is still reported for every such row."""
+    import pytest
+
+    from evseg.errors import ConfigError
+    from evseg.veckm_flow import losses as L
+
+    g = torch.Generator().manual_seed(1)
+    batch = _batch(16)
+    batch["optical_flow"] = batch["normal_flow"] + torch.randn(16, 2, generator=g) * 50.0  # both known
+    batch["is_object"] = (torch.arange(16) < 4).float()
+    torch.manual_seed(0)
+    m = NormalFlowModule(head={"hidden": 16, "layers": 1}, object_weight=3.0, flow_target="optical")
+    pred = m(batch["features"])[:, :2]
+    per = L.veckm_optical_flow_loss(pred, batch["optical_flow"] / m.flow_unit_px_s)
+    parts = m._losses(batch)
+    torch.testing.assert_close(parts["of"], (3.0 * per[:4].sum() + per[4:].sum()) / (3.0 * 4 + 12))
+    assert parts["nf"] == 0 and len(parts["angular_error_deg"]) == 16
+    # the default learns the normal flow where both are known
+    m.hparams.flow_target = "normal"
+    parts = m._losses(batch)
+    assert parts["of"] == 0 and parts["nf"] > 0
+    # rows with normal flow only still take the normal-flow loss under 'optical'
+    m.hparams.flow_target = "optical"
+    nf_only = _batch(16)
+    parts = m._losses(nf_only)
+    assert parts["nf"] > 0 and parts["of"] == 0
+    with pytest.raises(ConfigError, match="flow_target must be one of normal, optical"):
+        NormalFlowModule(flow_target="full")
