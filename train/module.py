@@ -56,8 +56,8 @@ class NormalFlowModule(pl.LightningModule):
         object_weight: weight of a target on an independently moving object (ground-truth
             label >= 1, simulated data) in the normal-flow loss, relative to a background
             target's 1. Objects are a few % of the targets, yet the segmentation needs their
-            flow most: 1 = every target weighs alike (the shipped model). With
-            ``flow_target="optical"`` it weighs the optical-flow loss alike.
+            flow most: 1 = every target weighs alike (the shipped model). It weighs the
+            optical-flow loss alike (real recordings have no labels: every row weighs 1).
         flow_target: which ground truth the flow output learns where both are known
             (simulated data). ``"normal"`` (the shipped model): the normal flow, the optical
             flow only where no normal flow is known. ``"optical"``: VecKM_flow's loss against
@@ -116,13 +116,11 @@ class NormalFlowModule(pl.LightningModule):
         nf = batch["normal_flow"] / self.flow_unit_px_s
         of = batch["optical_flow"] / self.flow_unit_px_s
         known_nf = torch.isfinite(nf).all(dim=1)
+        known_of = torch.isfinite(of).all(dim=1)
         if self.hparams.get("flow_target", "normal") == "optical":
-            has_of = torch.isfinite(of).all(dim=1)
-            has_nf = known_nf & ~has_of
+            has_nf, has_of = known_nf & ~known_of, known_of
         else:
-            has_nf = known_nf
-            has_of = torch.isfinite(of).all(dim=1) & ~has_nf
-        w_obj = float(self.hparams.get("object_weight", 1.0))
+            has_nf, has_of = known_nf, known_of & ~known_nf
         zero = out.sum() * 0.0  # keeps every parameter in the graph (DDP needs it)
         parts = {"nf": zero, "of": zero, "nll": zero}
         # Error label of the uncertainty output: the angular error (rad) where GT normal flow
@@ -135,11 +133,7 @@ class NormalFlowModule(pl.LightningModule):
             balance = float(self.hparams.get("magnitude_balance", 0.0))
             if balance > 0:
                 per_target = per_target * L.magnitude_weights(nf[has_nf], balance)
-            if w_obj != 1.0 and "is_object" in batch:
-                w = 1.0 + (w_obj - 1.0) * batch["is_object"][has_nf]
-                parts["nf"] = (w * per_target).sum() / w.sum()
-            else:
-                parts["nf"] = per_target.mean()
+            parts["nf"] = self._object_weighted_mean(per_target, batch, has_nf)
             if self.hparams.get("uncertainty_target", "angle") == "relative_error":
                 gt = torch.nan_to_num(nf)
                 rel = (pred - gt).norm(dim=1) / gt.norm(dim=1).clamp_min(1e-6)
@@ -148,11 +142,7 @@ class NormalFlowModule(pl.LightningModule):
                 err = torch.where(has_nf, ae, err)
         if has_of.any():
             per_target = L.veckm_optical_flow_loss(pred[has_of], of[has_of])
-            if w_obj != 1.0 and "is_object" in batch:
-                w = 1.0 + (w_obj - 1.0) * batch["is_object"][has_of]
-                parts["of"] = (w * per_target).sum() / w.sum()
-            else:
-                parts["of"] = per_target.mean()
+            parts["of"] = self._object_weighted_mean(per_target, batch, has_of)
             err = torch.where(has_of, L.optical_flow_error(pred, torch.nan_to_num(of)), err)
         known = has_nf | has_of
         if known.any():
@@ -166,6 +156,15 @@ class NormalFlowModule(pl.LightningModule):
         parts["angular_error_deg"] = torch.rad2deg(ae[known_nf]).detach()
         parts["sign_ok"] = ((pred[known_nf] * nf[known_nf]).sum(dim=1) > 0).float().detach()
         return parts
+
+    def _object_weighted_mean(self, per_target: torch.Tensor, batch: dict, rows: torch.Tensor) -> torch.Tensor:
+        """Mean of ``per_target`` (the loss of the ``rows`` of the batch), targets on objects
+        weighing ``object_weight`` and the others 1; the plain mean without ``is_object``."""
+        w_obj = float(self.hparams.get("object_weight", 1.0))
+        if w_obj == 1.0 or "is_object" not in batch:
+            return per_target.mean()
+        w = 1.0 + (w_obj - 1.0) * batch["is_object"][rows]
+        return (w * per_target).sum() / w.sum()
 
     def training_step(self, batch: dict, batch_idx: int) -> torch.Tensor:
         parts = self._losses(batch)
