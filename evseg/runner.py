@@ -26,6 +26,7 @@ class SegmentJob:
     topic: str | None = None
     sensor_size: str | tuple[int, int] | None = None
     calib: Path | None = None
+    calib_camera: str | None = None
     sort: bool = False
     config: str | None = None
     window_ms: float = 10.0
@@ -151,7 +152,9 @@ def run_segment_job(job: SegmentJob) -> str:
     from evseg.results import ResultWriter
 
     cfg = build_pipeline_config(job)  # config errors surface before any work
-    calibration = load_calibration(job.calib) if job.calib is not None else None
+    if job.calib_camera is not None and job.calib is None:
+        raise ConfigError(f"--calib-camera {job.calib_camera} names a camera of a calibration file: give --calib too")
+    calibration = load_calibration(job.calib, job.calib_camera) if job.calib is not None else None
     sensor_size = parse_sensor_size(job.sensor_size) if isinstance(job.sensor_size, str) else job.sensor_size
     with open_recording(job.recording, format=job.format, topic=job.topic, sensor_size=sensor_size,
                         sort=job.sort) as rec:
@@ -169,7 +172,7 @@ def run_segment_job(job: SegmentJob) -> str:
         elif tuple(calibration.sensor_size) != tuple(rec.sensor_size):
             # K of another camera or resolution would undistort every event wrongly, silently.
             raise CalibrationError(
-                f"{job.calib}: fields 'image_width', 'image_height' = "
+                f"{job.calib}: fields 'image_width', 'image_height' (Kalibr: 'resolution') = "
                 f"{calibration.sensor_size[0]}x{calibration.sensor_size[1]} do not match the sensor "
                 f"{rec.sensor_size[0]}x{rec.sensor_size[1]} of {job.recording}"
             )

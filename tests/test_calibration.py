@@ -44,7 +44,10 @@ def test_shared_emsgc_calibration(shared_data):
         (YAML.replace("image_width: 240\n", ""), "missing field 'image_width'"),
         (YAML.replace("data: [199.092, 0, 132.192, 0, 198.829, 110.713, 0, 0, 1]", "data: [1, 2, 3]"),
          r"'camera_matrix.data' needs 9 numbers"),
-        (YAML.replace("radtan", "equidistant"), "'distortion_model' = 'equidistant' is not supported"),
+        (YAML.replace("radtan", "fov"), "'distortion_model' = 'fov' is not supported"),
+        (YAML.replace("radtan", "equidistant").replace("cols: 4\n  data: [", "cols: 5\n  data: [0.01, "),
+         r"'distortion_coefficients.data' needs 4 numbers for equidistant distortion, got 5"),
+        (YAML.replace("radtan", "none"), r"distortion model 'none' but field 'distortion_coefficients.data'"),
         ("- just a list", "expected a mapping"),
     ],
 )
@@ -59,3 +62,140 @@ def test_bad_calibration_names_file_and_field(tmp_path, text, message):
 def test_missing_calibration_file():
     with pytest.raises(CalibrationError, match="not found"):
         load_calibration("/nonexistent/calib.yaml")
+
+
+K_DAVIS240 = np.array([[199.092, 0, 132.192], [0, 198.829, 110.713], [0, 0, 1]])
+
+
+def _rays_inside(K, distort, size):
+    """Undistorted normalised rays of a grid, their distorted pixels, kept where they land on
+    the sensor: (truth px (N, 2), distorted px (N, 2))."""
+    xs, ys = np.meshgrid(np.linspace(-0.9, 0.9, 37), np.linspace(-0.7, 0.7, 29))
+    rays = np.stack([xs.ravel(), ys.ravel()], axis=1)
+    px = distort(rays)
+    inside = (px[:, 0] >= 0) & (px[:, 0] <= size[0] - 1) & (px[:, 1] >= 0) & (px[:, 1] <= size[1] - 1)
+    truth = rays @ K[:2, :2].T + K[:2, 2]
+    return truth[inside], px[inside]
+
+
+def test_radtan_undistortion_inverts_the_distortion_to_a_micro_pixel():
+    """OpenCV's default 5 iterations leave up to 0.05 px of error at this DAVIS240's corners
+    (k1 = -0.37); the calibration iterates to convergence. Tolerance 1e-6 px: what the
+    iteration's 1e-12 stop reaches, with room for float round-off."""
+    import cv2
+
+    D = np.array([-0.3684, 0.1509, -2.96e-4, -7.59e-4])
+    cal = Calibration(K_DAVIS240, D, (240, 180))
+
+    def distort(rays):
+        obj = np.column_stack([rays, np.ones(len(rays))])
+        return cv2.projectPoints(obj, np.zeros(3), np.zeros(3), K_DAVIS240, D)[0].reshape(-1, 2)
+
+    truth, px = _rays_inside(K_DAVIS240, distort, cal.sensor_size)
+    assert len(px) > 500
+    xu, yu = cal.undistort(px[:, 0], px[:, 1])
+    np.testing.assert_allclose(np.column_stack([xu, yu]), truth, atol=1e-6)
+
+
+def test_equidistant_undistortion_inverts_the_fisheye_distortion():
+    """Kannala-Brandt coefficients of a wide-angle lens: undistortion inverts
+    cv2.fisheye.distortPoints (tolerance 1e-6 px, as above), and reading the same numbers as
+    radtan would place the corner pixels pixels away (the model is really used)."""
+    import cv2
+
+    D = np.array([-0.04, 0.012, -0.006, 0.001])
+    cal = Calibration(K_DAVIS240, D, (240, 180), model="equidistant")
+
+    def distort(rays):
+        return cv2.fisheye.distortPoints(rays.reshape(-1, 1, 2), K_DAVIS240, D).reshape(-1, 2)
+
+    truth, px = _rays_inside(K_DAVIS240, distort, cal.sensor_size)
+    xu, yu = cal.undistort(px[:, 0], px[:, 1])
+    np.testing.assert_allclose(np.column_stack([xu, yu]), truth, atol=1e-6)
+    xr, yr = Calibration(K_DAVIS240, D, (240, 180)).undistort(px[:, 0], px[:, 1])
+    assert np.max(np.hypot(xr - truth[:, 0], yr - truth[:, 1])) > 1.0
+    xn, yn = cal.undistort(px[:, 0], px[:, 1], normalized=True)
+    np.testing.assert_allclose(xn * K_DAVIS240[0, 0] + K_DAVIS240[0, 2], xu, atol=1e-9)
+
+
+def test_calibration_rejects_a_wrong_model_or_coefficient_count():
+    with pytest.raises(CalibrationError, match="one of radtan, equidistant, got 'kb8'"):
+        Calibration(K_DAVIS240, np.zeros(4), (240, 180), model="kb8")
+    with pytest.raises(CalibrationError, match="equidistant distortion needs 4 coefficients, got 5"):
+        Calibration(K_DAVIS240, np.zeros(5), (240, 180), model="equidistant")
+
+
+def test_ros_equidistant_and_rational_polynomial_files(tmp_path):
+    p = tmp_path / "fisheye.yaml"
+    p.write_text(YAML.replace("radtan", "equidistant"))
+    cal = load_calibration(p)
+    assert cal.model == "equidistant"
+    np.testing.assert_array_equal(cal.D, [-0.3684, 0.1509, -2.96e-4, -7.59e-4])
+    p.write_text(YAML.replace("radtan", "rational_polynomial").replace(
+        "cols: 4\n  data: [", "cols: 8\n  data: [0.01, 0.0, 0.0, 0.0, "))
+    cal = load_calibration(p)
+    assert cal.model == "radtan" and len(cal.D) == 8
+    with pytest.raises(CalibrationError, match="camera 'cam1' asked for, but the file is a single-camera"):
+        load_calibration(p, camera="cam1")
+
+
+KALIBR = """cam0:
+  cam_overlaps: [1]
+  camera_model: pinhole
+  distortion_coeffs: [-0.04, 0.012, -0.006, 0.001]
+  distortion_model: equidistant
+  intrinsics: [320.5, 321.25, 172.0, 131.5]
+  resolution: [346, 260]
+  rostopic: /davis/left/events
+cam1:
+  T_cn_cnm1:
+  - [1.0, 0.0, 0.0, -0.1]
+  - [0.0, 1.0, 0.0, 0.0]
+  - [0.0, 0.0, 1.0, 0.0]
+  - [0.0, 0.0, 0.0, 1.0]
+  camera_model: pinhole
+  distortion_coeffs: [-0.3, 0.09, 0.0001, -0.0002]
+  distortion_model: radtan
+  intrinsics: [330.0, 331.0, 170.0, 130.0]
+  resolution: [346, 260]
+  rostopic: /davis/right/events
+"""
+
+
+def test_kalibr_camchain_picks_the_named_camera(tmp_path):
+    p = tmp_path / "camchain.yaml"
+    p.write_text(KALIBR)
+    with pytest.raises(CalibrationError, match=r"2 cameras \(cam0, cam1\); choose one") as info:
+        load_calibration(p)
+    assert "--calib-camera" in str(info.value) and "camchain.yaml" in str(info.value)
+    left = load_calibration(p, camera="cam0")
+    assert left.model == "equidistant" and left.sensor_size == (346, 260)
+    np.testing.assert_array_equal(left.K, [[320.5, 0, 172.0], [0, 321.25, 131.5], [0, 0, 1]])
+    np.testing.assert_array_equal(left.D, [-0.04, 0.012, -0.006, 0.001])
+    right = load_calibration(p, camera="cam1")
+    assert right.model == "radtan" and right.K[0, 0] == 330.0
+    with pytest.raises(CalibrationError, match="no camera 'cam2' in this Kalibr camchain"):
+        load_calibration(p, camera="cam2")
+    # A camchain of one camera needs no name.
+    p.write_text(KALIBR.split("cam1:")[0])
+    assert load_calibration(p).model == "equidistant"
+
+
+@pytest.mark.parametrize(
+    "edit, message",
+    [
+        (("camera_model: pinhole", "camera_model: omni"), r"'cam0.camera_model' = 'omni' is not supported"),
+        (("resolution: [346, 260]", "resolution: 346"), r"'cam0.resolution' must be \[width, height\]"),
+        (("intrinsics: [320.5, 321.25, 172.0, 131.5]", "intrinsics: [320.5, 172.0, 131.5]"),
+         r"'cam0.intrinsics' needs 4 numbers"),
+        (("distortion_model: equidistant", "distortion_model: fov"), r"'cam0.distortion_model' = 'fov'"),
+        (("distortion_coeffs: [-0.04, 0.012, -0.006, 0.001]", "distortion_coeffs: [-0.04, 0.012]"),
+         r"'cam0.distortion_coeffs' needs 4 numbers for equidistant"),
+    ],
+)
+def test_bad_kalibr_camchain_names_file_and_field(tmp_path, edit, message):
+    p = tmp_path / "bad.yaml"
+    p.write_text(KALIBR.split("cam1:")[0].replace(*edit))
+    with pytest.raises(CalibrationError, match=message) as info:
+        load_calibration(p)
+    assert "bad.yaml" in str(info.value)

@@ -68,9 +68,9 @@ def run(args: argparse.Namespace) -> int:
                 raise EvsegError(f"{args.input}: no events and no sensor size; pass --sensor-size WxH")
             cal = rec.calibration
             if cal is not None and tuple(cal.sensor_size) != tuple(rec.sensor_size):
-                from evseg.calibration import Calibration
+                from dataclasses import replace
 
-                cal = Calibration(cal.K, cal.D, rec.sensor_size)
+                cal = replace(cal, sensor_size=rec.sensor_size)
             return rec.sensor_size, rec.t_offset_us, cal
 
         write = write_npz_chunks if to == "npz" else write_h5_chunks

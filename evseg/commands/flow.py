@@ -46,7 +46,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="average the model's flow over this many mirror images of each slice "
                         "(docs/normal_flow.md; 8: 9.8 instead of 11.5 deg median angular error "
                         "on held-out scenes, at ~5x the time)")
-    p.add_argument("--calib", type=Path, default=None, help="calibration YAML (default: the file's own, if any)")
+    p.add_argument("--calib", type=Path, default=None,
+                   help="calibration YAML: ROS camera_info / EMSGC, or a Kalibr camchain (default: the file's own, if any)")
+    p.add_argument("--calib-camera", default=None, metavar="NAME",
+                   help="camera of a Kalibr camchain with several (cam0, cam1, ...)")
     p.add_argument("--window-ms", type=float, default=10.0, help="slice duration (ms): the targets of one slice")
     p.add_argument("--context-ms", type=float, default=20.0,
                    help="events of this span (ms) before a slice are neighbours of its targets too (0: the slice only)")
@@ -104,6 +107,8 @@ def run(args: argparse.Namespace) -> int:
         raise EvsegError(f"--context-ms must be >= 0, got {args.context_ms}")
     if args.cell_px < 1:
         raise EvsegError(f"--cell-px must be at least 1, got {args.cell_px}")
+    if args.calib_camera is not None and args.calib is None:
+        raise EvsegError(f"--calib-camera {args.calib_camera} names a camera of a calibration file: give --calib too")
     window_us = max(1, int(round(args.window_ms * 1000)))
     if not args.baseline:
         from evseg.veckm_flow.encoding import MAX_SLICE_SPAN_US
@@ -125,7 +130,7 @@ def run(args: argparse.Namespace) -> int:
             if rec.sensor_size is None:
                 raise EvsegError(f"{args.recording}: no events, and no --sensor-size given")
         sensor_size = rec.sensor_size
-        calibration = load_calibration(args.calib) if args.calib is not None else rec.calibration
+        calibration = load_calibration(args.calib, args.calib_camera) if args.calib is not None else rec.calibration
         if calibration is not None and tuple(calibration.sensor_size) != tuple(sensor_size):
             raise EvsegError(
                 f"{args.calib or args.recording}: calibration is for {calibration.sensor_size[0]}x"

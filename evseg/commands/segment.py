@@ -24,7 +24,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sensor-size", default=None, help="WIDTHxHEIGHT when the file has none")
     p.add_argument("--sort", action="store_true",
                    help="sort events by time first (loads the whole recording; for files whose time goes back)")
-    p.add_argument("--calib", type=Path, default=None, help="calibration YAML (ROS camera_info style)")
+    p.add_argument("--calib", type=Path, default=None,
+                   help="calibration YAML (ROS camera_info / EMSGC, or a Kalibr camchain)")
+    p.add_argument("--calib-camera", default=None, metavar="NAME",
+                   help="camera of a Kalibr camchain with several (cam0, cam1, ...)")
     p.add_argument("--config", default=None, help="segmentation preset name or YAML file")
     p.add_argument("--window-ms", type=float, default=10.0, help="window duration (ms)")
     p.add_argument("--stride-ms", type=float, default=None, help="time between windows (ms); default = window")
@@ -82,6 +85,7 @@ def run(args: argparse.Namespace) -> int:
         topic=args.topic,
         sensor_size=args.sensor_size,
         calib=args.calib,
+        calib_camera=args.calib_camera,
         sort=args.sort,
         config=args.config,
         window_ms=args.window_ms,

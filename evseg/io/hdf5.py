@@ -84,9 +84,11 @@ class H5Source:
             from evseg.errors import CalibrationError
 
             try:
-                self.calibration = Calibration(f["K"][()], f["D"][()], self.sensor_size)
+                model = attrs.get("distortion_model", "radtan")  # absent in older files: radtan
+                model = model.decode() if isinstance(model, bytes) else str(model)
+                self.calibration = Calibration(f["K"][()], f["D"][()], self.sensor_size, model)
             except (CalibrationError, OSError, ValueError) as exc:
-                raise FormatError(f"{where}: datasets 'K'/'D': {exc}") from None
+                raise FormatError(f"{where}: datasets 'K'/'D' (attribute 'distortion_model'): {exc}") from None
 
     def time_span_us(self) -> tuple[int, int] | None:
         """Times (us) of the first and last events, read from the ends of ``events/t``; None
@@ -166,6 +168,7 @@ def write_h5_chunks(chunks: Iterable[np.ndarray], path: str | Path, meta) -> Pat
             if calibration is not None:
                 f.create_dataset("K", data=calibration.K)
                 f.create_dataset("D", data=calibration.D)
+                f.attrs["distortion_model"] = calibration.model
     return path
 
 

@@ -121,7 +121,7 @@ class ArraySource:
         if calibration_KD is not None:
             self.calibration = self._calibration(*calibration_KD)
 
-    def _calibration(self, K, D):
+    def _calibration(self, K, D, model="radtan"):
         from evseg.calibration import Calibration
         from evseg.errors import CalibrationError
 
@@ -130,9 +130,9 @@ class ArraySource:
             _, x, y, _ = self._get(0, self._n)
             size = (int(np.max(x)) + 1, int(np.max(y)) + 1) if self._n else (1, 1)
         try:
-            return Calibration(np.asarray(K), np.asarray(D), size)
+            return Calibration(np.asarray(K), np.asarray(D), size, str(model))
         except CalibrationError as exc:
-            raise FormatError(f"{self.path}: {self.format}: keys 'K'/'D': {exc}") from None
+            raise FormatError(f"{self.path}: {self.format}: keys 'K'/'D'/'distortion_model': {exc}") from None
 
     def time_span_us(self) -> tuple[int, int] | None:
         """Times (us) of the first and last rows, O(1); None when empty or unreadable (the
@@ -223,6 +223,11 @@ def _open_npz(path: Path, where: str) -> ArraySource:
         kd = None
         if "K" in keys and "D" in keys:
             kd = (_npz_member(z, "K", where), _npz_member(z, "D", where))
+            if "distortion_model" in keys:  # absent in files written before it existed: radtan
+                model = _npz_member(z, "distortion_model", where)
+                if model.size != 1 or model.dtype.kind not in "US":
+                    raise FormatError(f"{where}: key 'distortion_model' must hold one string, got {model!r}")
+                kd += (str(model.item().decode() if model.dtype.kind == "S" else model.item()),)
         if "events" in keys:
             a = _npz_member(z, "events", where)
             get, n = _array_getter(a, f"{where}: key 'events'"), len(a)
@@ -287,6 +292,7 @@ def write_npz_chunks(
                      "t_offset_us": np.asarray(t_offset_us, dtype=np.int64)}
             if calibration is not None:
                 extra["K"], extra["D"] = calibration.K, calibration.D
+                extra["distortion_model"] = np.asarray(calibration.model)
             for key, arr in extra.items():
                 with zf.open(f"{key}.npy", "w") as member:
                     np.lib.format.write_array(member, arr, allow_pickle=False)

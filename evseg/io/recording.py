@@ -218,9 +218,9 @@ class Recording:
             )
         cal = self.calibration
         if cal is not None and tuple(cal.sensor_size) != tuple(self.sensor_size):
-            from evseg.calibration import Calibration
+            from dataclasses import replace
 
-            cal = Calibration(cal.K, cal.D, self.sensor_size)
+            cal = replace(cal, sensor_size=self.sensor_size)
         return EventStream(events, self.sensor_size, self.t_offset_us, cal)
 
 

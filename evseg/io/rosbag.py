@@ -7,7 +7,10 @@ which is far faster than building one Python object per event.
 Topic: the one connection whose type is ``dvs_msgs/msg/EventArray``; if there are several,
 :class:`FormatError` lists them and ``topic=`` (``--topic``) picks one. Sensor size: the
 ``width``/``height`` of the first message. Times: ``t_offset_us`` is the absolute ROS time
-(us) of the first event, and ``t`` counts from there.
+(us) of the first event, and ``t`` counts from there. Calibration: the first
+``sensor_msgs/CameraInfo`` message on ``camera_info`` beside the event topic (``/dvs/events``
+-> ``/dvs/camera_info``, as the rpg_dvs_ros driver publishes it), unless its ``K`` is all zeros
+(an uncalibrated camera); a ``--calib`` file overrides it.
 
 ``dvs_msgs`` is not built into ``rosbags``; :func:`dvs_typestore` registers it from its message
 definitions (used to write bags, e.g. in the tests).
@@ -25,6 +28,7 @@ from evseg.events import EVENT_DTYPE
 from evseg.io.recording import Chunk, batched_chunks
 
 EVENT_ARRAY = "dvs_msgs/msg/EventArray"
+CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
 
 DVS_MSG_DEFINITIONS = {
     "dvs_msgs/msg/Event": "uint16 x\nuint16 y\ntime ts\nbool polarity\n",
@@ -87,6 +91,7 @@ class RosbagSource:
         try:
             self._pick_topic(topic)
             self._peek()
+            self.calibration = self._camera_info()
         except Exception:
             self.close()
             raise
@@ -118,6 +123,34 @@ class RosbagSource:
             chosen = [c for c in event_conns if c.topic == topic]
         self.topic = topic
         self._conns = chosen
+
+    def _camera_info(self):
+        """The calibration published beside the event topic (module docstring), or None."""
+        name = self.topic.rsplit("/", 1)[0] + "/camera_info"
+        conns = [c for c in self._reader.connections if c.topic == name and c.msgtype == CAMERA_INFO]
+        if not conns:
+            return None
+        from rosbags.typesys import Stores, get_typestore
+
+        from evseg.calibration import calibration_from_camera_info
+        from evseg.errors import CalibrationError
+
+        where = f"{self._where}: topic '{name}'"
+        try:
+            raw = next((raw for _, _, raw in self._reader.messages(connections=conns)), None)
+            if raw is None:
+                return None
+            msg = get_typestore(Stores.ROS1_NOETIC).deserialize_ros1(raw, CAMERA_INFO)
+        except Exception as exc:
+            raise FormatError(f"{where}: corrupt CameraInfo message ({type(exc).__name__}: {exc})") from None
+        size = self.sensor_size or (int(msg.width), int(msg.height))
+        if msg.width and msg.height and (int(msg.width), int(msg.height)) != tuple(size):
+            raise FormatError(f"{where}: CameraInfo is for {msg.width}x{msg.height}, the events are "
+                              f"{size[0]}x{size[1]}; pick the event topic of that camera (--topic)")
+        try:
+            return calibration_from_camera_info(msg.K, msg.D, msg.distortion_model, size, where)
+        except CalibrationError as exc:
+            raise FormatError(str(exc)) from None
 
     def _messages(self):
         try:

@@ -77,8 +77,11 @@ def text_lines(ev: np.ndarray, size=(64, 48)) -> str:
 
 
 def write_bag(path, topics: dict[str, list[np.ndarray]], t0_ns: int = 1_519_939_282_250_708_000,
-              extra_topic: bool = True, width: int = 64, height: int = 48) -> None:
-    """One EventArray message per array, per topic; times = t0 + event t (us)."""
+              extra_topic: bool = True, width: int = 64, height: int = 48,
+              camera_info: dict[str, dict] | None = None) -> None:
+    """One EventArray message per array, per topic; times = t0 + event t (us).
+    ``camera_info``: topic -> sensor_msgs/CameraInfo fields (K, D, distortion_model, width,
+    height), one message each."""
     from rosbags.rosbag1 import Writer
 
     from evseg.io.rosbag import EVENT_ARRAY, dvs_typestore
@@ -89,6 +92,14 @@ def write_bag(path, topics: dict[str, list[np.ndarray]], t0_ns: int = 1_519_939_
     Event = store.types["dvs_msgs/msg/Event"]
     EventArray = store.types[EVENT_ARRAY]
     with Writer(path) as w:
+        for topic, info in (camera_info or {}).items():
+            CameraInfo, roi = store.types["sensor_msgs/msg/CameraInfo"], store.types["sensor_msgs/msg/RegionOfInterest"]
+            msg = CameraInfo(Header(0, Time(t0_ns // 10**9, t0_ns % 10**9), "cam"), info.get("height", height),
+                             info.get("width", width), info["distortion_model"], np.asarray(info["D"], dtype=np.float64),
+                             np.asarray(info["K"], dtype=np.float64), np.eye(3).ravel(), np.zeros(12), 0, 0,
+                             roi(0, 0, 0, 0, False))
+            conn = w.add_connection(topic, "sensor_msgs/msg/CameraInfo", typestore=store)
+            w.write(conn, t0_ns, store.serialize_ros1(msg, "sensor_msgs/msg/CameraInfo"))
         if extra_topic:
             conn = w.add_connection("/chatter", "std_msgs/msg/String", typestore=store)
             w.write(conn, t0_ns, store.serialize_ros1(store.types["std_msgs/msg/String"]("hi"), "std_msgs/msg/String"))

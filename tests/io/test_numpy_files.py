@@ -67,6 +67,21 @@ def test_write_npz_round_trip_with_calibration(tmp_path):
     assert back.sensor_size == (240, 180) and back.t_offset_us == 123_456_789
     np.testing.assert_array_equal(back.calibration.K, K)
     np.testing.assert_array_equal(back.calibration.D, cal.D)
+    assert back.calibration.model == "radtan"
+
+
+@pytest.mark.parametrize("suffix", [".npz", ".h5"])
+def test_written_files_keep_the_distortion_model(tmp_path, suffix):
+    """An equidistant calibration read back as radtan would undistort every event wrongly."""
+    from evseg.io import write_h5
+
+    K = np.array([[200.0, 0, 120], [0, 199, 90], [0, 0, 1]])
+    cal = Calibration(K, np.array([-0.04, 0.012, -0.006, 0.001]), (240, 180), model="equidistant")
+    stream = EventStream(sample_events(100, width=240, height=180), (240, 180), 0, cal)
+    p = (write_npz if suffix == ".npz" else write_h5)(stream, tmp_path / f"out{suffix}")
+    back = read_events(p).calibration
+    assert back.model == "equidistant"
+    np.testing.assert_array_equal(back.D, cal.D)
 
 
 def test_failed_write_leaves_no_file(tmp_path):

@@ -44,3 +44,35 @@ def test_bag_without_events(tmp_path):
     write_bag(p, {})
     with pytest.raises(FormatError, match=r"no dvs_msgs/msg/EventArray topic; topics: /chatter"):
         read_events(p)
+
+
+K_INFO = [60.0, 0.0, 32.0, 0.0, 61.0, 24.0, 0.0, 0.0, 1.0]
+
+
+def test_camera_info_beside_the_event_topic_is_the_calibration(tmp_path):
+    ev = sample_events(30, seed=6)
+    write_bag(p := tmp_path / "b1.bag", {"/dvs/events": [ev]}, camera_info={
+        "/dvs/camera_info": {"K": K_INFO, "D": [0.01, -0.002, 0.0005, 0.0001], "distortion_model": "equidistant"}})
+    cal = read_events(p).calibration
+    assert cal.model == "equidistant" and cal.sensor_size == (64, 48)
+    np.testing.assert_array_equal(cal.K.ravel(), K_INFO)
+    np.testing.assert_array_equal(cal.D, [0.01, -0.002, 0.0005, 0.0001])
+    # Only the camera_info of the chosen event topic's namespace counts; a zero K = uncalibrated.
+    write_bag(p := tmp_path / "b2.bag", {"/dvs/events": [ev]}, camera_info={
+        "/other/camera_info": {"K": K_INFO, "D": [], "distortion_model": "plumb_bob"}})
+    assert read_events(p).calibration is None
+    write_bag(p := tmp_path / "b3.bag", {"/dvs/events": [ev]}, camera_info={
+        "/dvs/camera_info": {"K": [0.0] * 9, "D": [], "distortion_model": ""}})
+    assert read_events(p).calibration is None
+
+
+def test_bad_camera_info_names_the_topic_and_field(tmp_path):
+    ev = sample_events(30, seed=6)
+    write_bag(p := tmp_path / "b4.bag", {"/dvs/events": [ev]}, camera_info={
+        "/dvs/camera_info": {"K": K_INFO, "D": [0.1, 0.0, 0.0], "distortion_model": "plumb_bob"}})
+    with pytest.raises(FormatError, match=r"topic '/dvs/camera_info': field 'D' needs 4 or 5 or 8 numbers"):
+        read_events(p)
+    write_bag(p := tmp_path / "b5.bag", {"/dvs/events": [ev]}, camera_info={
+        "/dvs/camera_info": {"K": K_INFO, "D": [], "distortion_model": "plumb_bob", "width": 346, "height": 260}})
+    with pytest.raises(FormatError, match=r"CameraInfo is for 346x260, the events are 64x48"):
+        read_events(p)

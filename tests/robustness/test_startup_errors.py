@@ -14,6 +14,9 @@ from evseg.cli import main
 
 GOOD_K = "camera_matrix: {rows: 3, cols: 3, data: [100, 0, 64, 0, 100, 48, 0, 0, 1]}\n"
 SIZE = "image_width: 128\nimage_height: 96\n"
+KALIBR_TWO = "".join(
+    f"cam{k}: {{camera_model: pinhole, intrinsics: [100, 100, 64, 48], distortion_model: equidistant, "
+    f"distortion_coeffs: [0.01, 0, 0, 0], resolution: [128, 96]}}\n" for k in (0, 1))
 
 
 def _segment_fails_cleanly(capsys, tmp_path: Path, recording: Path, extra: list[str], must_name: list[str]) -> str:
@@ -92,7 +95,12 @@ CALIBRATIONS = {
     "zero focal length": (SIZE + "camera_matrix: {data: [0, 0, 64, 0, 100, 48, 0, 0, 1]}\n", "K"),
     "3 distortion coefficients": (SIZE + GOOD_K + "distortion_coefficients: {data: [0.1, 0, 0]}\n",
                                   "distortion_coefficients"),
-    "unknown distortion model": (SIZE + GOOD_K + "distortion_model: fisheye\n", "distortion_model"),
+    "unknown distortion model": (SIZE + GOOD_K + "distortion_model: fov\n", "distortion_model"),
+    "fisheye with 5 coefficients": (SIZE + GOOD_K + "distortion_model: equidistant\n"
+                                    "distortion_coefficients: {data: [0.1, 0, 0, 0, 0]}\n", "distortion_coefficients"),
+    "Kalibr camchain, two cameras": (KALIBR_TWO, "--calib-camera"),
+    "Kalibr camchain, no resolution": ("cam0: {camera_model: pinhole, intrinsics: [100, 100, 64, 48]}\n",
+                                       "cam0.resolution"),
     "not a mapping": ("- 1\n- 2\n", "mapping"),
     "other sensor size": ("image_width: 640\nimage_height: 480\n" + GOOD_K, "image_width"),
 }
@@ -111,6 +119,18 @@ def test_missing_calibration_file(tmp_path, capsys, sim_files):
     _, recording, _ = sim_files
     calib = tmp_path / "nowhere.yaml"
     _segment_fails_cleanly(capsys, tmp_path, recording, ["--calib", str(calib)], [str(calib), "not found"])
+
+
+def test_kalibr_camchain_camera_runs(tmp_path, capsys, sim_files):
+    """Control for the two-camera case above: naming the camera makes the same command run."""
+    _, recording, _ = sim_files
+    calib = tmp_path / "camchain.yaml"
+    calib.write_text(KALIBR_TWO)
+    out = tmp_path / "r.npz"
+    assert main(["segment", str(recording), "--out", str(out), "--flow-method", "planefit", "--no-progress",
+                 "--calib", str(calib), "--calib-camera", "cam1"]) == 0
+    assert out.is_file()
+    _segment_fails_cleanly(capsys, tmp_path, recording, ["--calib-camera", "cam1"], ["--calib-camera cam1", "--calib"])
 
 
 # Found by these tests and fixed in evseg/calibration.py: non-integer sizes, NaN distortion,
