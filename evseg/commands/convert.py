@@ -24,7 +24,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="read the input as this format instead of detecting it")
     p.add_argument("--to", choices=["npz", "h5"], default=None,
                    help="output format; None: from the output's extension")
-    p.add_argument("--topic", default=None, help="ROS bag topic of the dvs_msgs/EventArray messages")
+    p.add_argument("--topic", default=None, help="ROS bag topic of the event messages (default: the only one)")
     p.add_argument("--sensor-size", default=None, metavar="WxH",
                    help="sensor size in px, e.g. 346x260 (overrides the input's)")
     p.add_argument("--time-unit", choices=["s", "us"], default=None,

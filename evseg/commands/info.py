@@ -19,7 +19,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("recording", type=Path, help="event file (any supported format)")
     p.add_argument("--format", choices=list(FORMATS), default=None,
                    help="read as this format instead of detecting it")
-    p.add_argument("--topic", default=None, help="ROS bag topic of the dvs_msgs/EventArray messages")
+    p.add_argument("--topic", default=None, help="ROS bag topic of the event messages (default: the only one)")
     p.add_argument("--sensor-size", default=None, metavar="WxH",
                    help="sensor size in px, e.g. 346x260 (overrides the file's)")
     p.add_argument("--time-unit", choices=["s", "us"], default=None,

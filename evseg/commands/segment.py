@@ -20,7 +20,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("recording", type=Path, help="event recording (any supported format)")
     p.add_argument("--out", type=Path, required=True, help="result file (.npz)")
     p.add_argument("--format", default=None, help="override format detection")
-    p.add_argument("--topic", default=None, help="ROS bag topic with dvs_msgs/EventArray")
+    p.add_argument("--topic", default=None, help="ROS bag topic of the event messages (default: the only one)")
     p.add_argument("--sensor-size", default=None, help="WIDTHxHEIGHT when the file has none")
     p.add_argument("--sort", action="store_true",
                    help="sort events by time first (loads the whole recording; for files whose time goes back)")

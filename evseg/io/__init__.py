@@ -15,7 +15,8 @@ Example
 >>> stream = read_events("sample.aedat4")                        # doctest: +SKIP
 
 Formats (``FORMATS``; the format is detected from magic bytes and the extension, ``format=``
-overrides): text/csv, npy, npz, mat, h5 (DSEC layout), rosbag (dvs_msgs/EventArray), aedat4,
+overrides): text/csv, npy, npz, mat, h5 (DSEC layout), rosbag and rosbag2 (ROS1 and ROS2 bags
+of dvs_msgs / prophesee_event_msgs EventArray or event_camera_msgs EventPacket), aedat4,
 evt2, evt3 (Prophesee .raw), es (Event Stream v2 DVS). Writers: :func:`write_npz`,
 :func:`write_h5` (and :func:`write_text`), all atomic and lossless through the readers.
 """
@@ -55,9 +56,10 @@ def open_recording(
     """Open a recording for streaming.
 
     Args:
-        path: the file.
+        path: the file (or a ROS2 bag's directory).
         format: registry name (see :data:`FORMATS`); ``None`` detects it.
-        topic: ROS bag topic of the ``dvs_msgs/EventArray`` messages (default: the only one).
+        topic: ROS bag topic of the event messages (default: the only one; see
+            :mod:`evseg.io.rosbag`).
         sensor_size: ``(width, height)`` in px; overrides the file's, or supplies it when the
             file has none (otherwise it is inferred as max + 1 by :meth:`Recording.read_all`).
         chunk_events: approximate events per yielded chunk, the bound on memory (bags and
@@ -73,7 +75,7 @@ def open_recording(
     fmt = format if format is not None else detect_format(path)
     options = {}
     if topic is not None:
-        if fmt != "rosbag":
+        if fmt not in ("rosbag", "rosbag2"):
             raise EvsegError(f"{path}: a topic only applies to ROS bags, this file is {fmt}")
         options["topic"] = topic
     if time_unit is not None:

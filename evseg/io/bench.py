@@ -71,10 +71,93 @@ def encode_es(ev: np.ndarray, width: int, height: int) -> bytes:
     return header + out.tobytes()
 
 
-def write_synthetic(fmt: str, ev: np.ndarray, folder: Path, size: tuple[int, int]) -> Path:
-    """Write ``ev`` in format ``fmt`` (text, npz, h5, evt2, evt3, es) under ``folder``."""
-    from evseg.io import write_h5, write_npz, write_text
+def _header(cdr: bool) -> bytes:
+    """A std_msgs/Header with stamp 0 and an empty frame_id, then the alignment to 4 bytes."""
+    if cdr:  # encapsulation CDR_LE, sec, nanosec, frame_id "" (length 1: the NUL), 3 bytes padding
+        return b"\x00\x01\x00\x00" + bytes(8) + (1).to_bytes(4, "little") + bytes(4)
+    return bytes(12) + bytes(4)  # seq, sec, nsec, frame_id length 0
 
+
+def encode_event_arrays(ev: np.ndarray, size: tuple[int, int], cdr: bool, per_message: int = 1000) -> list[bytes]:
+    """Serialised ``dvs_msgs/EventArray`` messages of ``per_message`` events each (t = ROS
+    time in us), ROS1 or CDR (the layouts of :mod:`evseg.io.ros_messages`)."""
+    out = []
+    for a in range(0, len(ev), per_message):
+        part = ev[a:a + per_message]
+        n = len(part)
+        head = _header(cdr) + np.array([size[1], size[0], n], dtype="<u4").tobytes()
+        if cdr:
+            body = np.zeros(14 + 16 * (n - 1), dtype=np.uint8)
+            rows = [(0, 14, (0, 2, 4, 8, 12))] + [(14, 16, (0, 2, 6, 10, 14))] * (n > 1)
+            for start, stride, offsets in rows:
+                sub = part[:1] if start == 0 else part[1:]
+                view = body[start:].reshape(-1, stride) if start else body[:14].reshape(1, 14)
+                for field, off, width, value in zip(("x", "y", "sec", "nsec", "p"), offsets, (2, 2, 4, 4, 1), (
+                        sub["x"], sub["y"], sub["t"] // 1_000_000, (sub["t"] % 1_000_000) * 1000, sub["p"] > 0)):
+                    view[:, off:off + width] = np.asarray(value).astype(f"<u{width}").view(np.uint8).reshape(-1, width)
+            out.append(head + body.tobytes())
+        else:
+            wire = np.empty(n, dtype=[("x", "<u2"), ("y", "<u2"), ("sec", "<u4"), ("nsec", "<u4"), ("polarity", "u1")])
+            wire["x"], wire["y"] = part["x"], part["y"]
+            wire["sec"], wire["nsec"] = part["t"] // 1_000_000, (part["t"] % 1_000_000) * 1000
+            wire["polarity"] = part["p"] > 0
+            out.append(head + wire.tobytes())
+    return out
+
+
+def encode_evt3_packets(ev: np.ndarray, size: tuple[int, int], cdr: bool, words: int = 4096) -> list[bytes]:
+    """Serialised ``event_camera_msgs/EventPacket`` messages, encoding ``evt3``: the EVT 3.0
+    words of ``ev`` (:func:`encode_evt3`) cut every ``words`` words, as a camera driver sends them."""
+    stream = encode_evt3(ev)
+    out = []
+    for a in range(0, len(stream), words):
+        data = stream[a:a + words].tobytes()
+        head = _header(cdr) + np.array([size[1], size[0]], dtype="<u4").tobytes()
+        # CDR: seq (uint64) needs 8-alignment and starts at data offset 24, already aligned.
+        head += np.array([a // words, 0], dtype="<u8").tobytes()
+        enc = b"evt3\x00" if cdr else b"evt3"
+        head += len(enc).to_bytes(4, "little") + enc + b"\x00"  # is_bigendian
+        if cdr:
+            head += bytes((-(len(head) - 4)) % 4)
+        out.append(head + len(data).to_bytes(4, "little") + data)
+    return out
+
+
+def write_bag_file(path: Path, messages: list[bytes], msgtype: str, ros2: bool) -> Path:
+    """A ROS1 bag (``path``) or ROS2 MCAP bag directory of ``messages`` on topic /dvs/events."""
+    from evseg.io.ros_messages import event_typestore
+
+    store = event_typestore(ros2)
+    if ros2:
+        from rosbags.rosbag2 import StoragePlugin, Writer
+
+        writer = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
+    else:
+        from rosbags.rosbag1 import Writer
+
+        writer = Writer(path)
+    with writer as w:
+        conn = w.add_connection("/dvs/events", msgtype, typestore=store)
+        for i, raw in enumerate(messages):
+            w.write(conn, i * 1_000_000, raw)
+    return path
+
+
+BAG_FORMATS = ("rosbag", "rosbag2", "rosbag2_evt3")
+"""The benchmark's bags: ROS1 and ROS2 (MCAP) dvs_msgs/EventArray, and ROS2 EVT 3.0 packets."""
+
+
+def write_synthetic(fmt: str, ev: np.ndarray, folder: Path, size: tuple[int, int]) -> Path:
+    """Write ``ev`` in format ``fmt`` (text, npz, h5, evt2, evt3, es or one of
+    :data:`BAG_FORMATS`) under ``folder``."""
+    from evseg.io import write_h5, write_npz, write_text
+    from evseg.io.ros_messages import DVS_EVENT_ARRAY, EVENT_PACKET
+
+    if fmt in ("rosbag", "rosbag2"):
+        return write_bag_file(folder / ("events.bag" if fmt == "rosbag" else "events_ros2"),
+                              encode_event_arrays(ev, size, cdr=fmt == "rosbag2"), DVS_EVENT_ARRAY, fmt == "rosbag2")
+    if fmt == "rosbag2_evt3":
+        return write_bag_file(folder / "evt3_ros2", encode_evt3_packets(ev, size, cdr=True), EVENT_PACKET, True)
     stream = EventStream(ev, size)
     if fmt == "text":
         return write_text(stream, folder / "events.txt")
@@ -112,7 +195,7 @@ def benchmark(repeats: int, quick: bool) -> list[dict]:
     ev = synthetic_events(n, *size)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        for fmt in ("evt3", "evt2", "es", "h5", "npz", "text"):
+        for fmt in ("evt3", "evt2", "es", "h5", "npz", *BAG_FORMATS, "text"):
             path = write_synthetic(fmt, ev, Path(tmp), size)
             times = []
             for _ in range(repeats):
@@ -124,7 +207,7 @@ def benchmark(repeats: int, quick: bool) -> list[dict]:
             rows.append({
                 "format": fmt,
                 "events": n,
-                "file_MB": path.stat().st_size / 1e6,
+                "file_MB": sum(f.stat().st_size for f in ([path] if path.is_file() else path.iterdir())) / 1e6,
                 "read_s": med,
                 "Mev_per_s": n / med / 1e6,
             })

@@ -4,7 +4,8 @@ Detection reads the first bytes of the file. A known magic number decides the fo
 suffix is only used for formats without one (text) and to catch files whose content
 contradicts their extension (e.g. an HDF5 file named ``.npz``): those are refused with a
 message naming both, unless the caller names the format explicitly (``format=`` /
-``--format``), which skips detection.
+``--format``), which skips detection. A directory is a ROS2 bag when it holds
+``metadata.yaml`` (format ``rosbag2``), and refused otherwise.
 """
 
 from __future__ import annotations
@@ -35,6 +36,10 @@ class FormatSpec:
     description: str
 
 
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+SQLITE_MAGIC = b"SQLite format 3\x00"
+"""A ROS2 bag's storage files: MCAP, or SQLite (``.db3``; any SQLite file is taken for one)."""
+
 FORMATS: dict[str, FormatSpec] = {
     s.name: s
     for s in [
@@ -49,7 +54,10 @@ FORMATS: dict[str, FormatSpec] = {
         FormatSpec("h5", "hdf5", (".h5", ".hdf5", ".hdf"), b"\x89HDF\r\n\x1a\n",
                    "DSEC-style HDF5: events/{x,y,t,p}, t_offset, ms_to_idx"),
         FormatSpec("rosbag", "rosbag", (".bag",), b"#ROSBAG V2.0\n",
-                   "ROS1 bag with dvs_msgs/EventArray messages (no ROS needed)"),
+                   "ROS1 bag of dvs_msgs or prophesee_event_msgs EventArray or event_camera_msgs "
+                   "EventPacket messages (no ROS needed)"),
+        FormatSpec("rosbag2", "rosbag", (".db3", ".mcap"), MCAP_MAGIC,
+                   "ROS2 bag (directory with metadata.yaml, or its .db3 / .mcap file), same messages"),
         FormatSpec("aedat4", "aedat4", (".aedat4",), b"#!AER-DAT4.0",
                    "iniVation AEDAT4 (event packets; frames and IMU are skipped)"),
         FormatSpec("evt2", "prophesee", (".raw",), b"%",
@@ -71,6 +79,8 @@ def format_names() -> list[str]:
 
 
 def _by_magic(head: bytes) -> str | None:
+    if head.startswith(SQLITE_MAGIC):
+        return "rosbag2"
     for spec in FORMATS.values():
         if spec.magic and spec.magic != b"%" and head.startswith(spec.magic):
             return spec.name
@@ -102,7 +112,10 @@ def detect_format(path: str | Path) -> str:
     except FileNotFoundError:
         raise FormatError(f"{path}: file not found") from None
     except IsADirectoryError:
-        raise FormatError(f"{path}: is a directory, not a recording file") from None
+        if (path / "metadata.yaml").is_file():
+            return "rosbag2"
+        raise FormatError(f"{path}: is a directory, not a recording file (a ROS2 bag directory "
+                          "holds metadata.yaml)") from None
     except OSError as exc:
         raise FormatError(f"{path}: cannot read ({exc.strerror})") from None
     if not head:
@@ -127,9 +140,10 @@ def detect_format(path: str | Path) -> str:
         return "text"  # no magic: the text reader reports bad content with its line number
     if by_suffix:
         spec = FORMATS[by_suffix[0]]
+        expected = [SQLITE_MAGIC, MCAP_MAGIC] if spec.name == "rosbag2" else [spec.magic]
         raise FormatError(
             f"{path}: not a valid {'/'.join(by_suffix)} file: bad magic bytes at offset 0 "
-            f"(expected {spec.magic!r}, got {head[:len(spec.magic) or 8]!r})"
+            f"(expected {' or '.join(repr(m) for m in expected)}, got {head[:len(expected[0]) or 8]!r})"
         )
     if _looks_like_text(head):
         return "text"
@@ -146,8 +160,10 @@ def open_source(path: Path, format: str, **options):
     if not path.exists():
         raise FormatError(f"{path}: file not found")
     if path.is_dir():
-        raise FormatError(f"{path}: is a directory, not a recording file")
-    if path.stat().st_size == 0:
+        if format != "rosbag2":
+            raise FormatError(f"{path}: is a directory, not a recording file (only a ROS2 bag, format "
+                              "rosbag2, is a directory)")
+    elif path.stat().st_size == 0:
         raise FormatError(f"{path}: empty file (0 bytes), no events to read")
     spec = FORMATS[format]
     module = importlib.import_module(f"evseg.io.{spec.module}")

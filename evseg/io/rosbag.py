@@ -1,93 +1,63 @@
-"""ROS1 bags with ``dvs_msgs/EventArray`` messages (EED, EVIMO, EMSGC data), without ROS.
+"""ROS1 and ROS2 bags of event messages (EED, EVIMO, EMSGC data; ROS2 camera drivers), without ROS.
 
-The bag container is read by the ``rosbags`` library; the event messages themselves are
-decoded with numpy straight from their ROS1 serialisation (a packed array of 13-byte events),
-which is far faster than building one Python object per event.
+The bag container is read by the ``rosbags`` library: ROS1 ``.bag`` files (format
+``rosbag``) and ROS2 bags (format ``rosbag2``): the directory ``ros2 bag record`` writes
+(``metadata.yaml`` with its ``.db3`` or ``.mcap`` files), or one ``.db3`` / ``.mcap`` file of
+it. The event messages themselves are decoded with numpy from their serialisation
+(:mod:`evseg.io.ros_messages`: ``dvs_msgs/EventArray``, ``prophesee_event_msgs/EventArray``,
+``event_camera_msgs/EventPacket`` with the ``evt3`` or ``mono`` encoding).
 
-Topic: the one connection whose type is ``dvs_msgs/msg/EventArray``; if there are several,
+Topic: the one connection whose type carries events; if there are several,
 :class:`FormatError` lists them and ``topic=`` (``--topic``) picks one. Sensor size: the
-``width``/``height`` of the first message. Times: ``t_offset_us`` is the absolute ROS time
-(us) of the first event, and ``t`` counts from there. Calibration: the first
-``sensor_msgs/CameraInfo`` message on ``camera_info`` beside the event topic (``/dvs/events``
--> ``/dvs/camera_info``, as the rpg_dvs_ros driver publishes it), unless its ``K`` is all zeros
-(an uncalibrated camera); a ``--calib`` file overrides it.
-
-``dvs_msgs`` is not built into ``rosbags``; :func:`dvs_typestore` registers it from its message
-definitions (used to write bags, e.g. in the tests).
+``width``/``height`` of the first message that gives them. Times: ``t_offset_us`` is the
+absolute time (us) of the first event, and ``t`` counts from there: ROS time for
+``EventArray`` and ``mono`` packets, the camera's own clock for ``evt3`` packets. Calibration:
+the first ``sensor_msgs/CameraInfo`` message on ``camera_info`` beside the event topic
+(``/dvs/events`` -> ``/dvs/camera_info``, as rpg_dvs_ros and the ROS2 drivers publish it),
+unless its ``K`` is all zeros (an uncalibrated camera); a ``--calib`` file overrides it.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Iterator
+from typing import Callable, Iterator
 
 import numpy as np
 
 from evseg.errors import FormatError
-from evseg.events import EVENT_DTYPE
 from evseg.io.recording import Chunk, batched_chunks
+from evseg.io.ros_messages import (
+    EVENT_ARRAY_TYPES,
+    EVENT_PACKET,
+    EVENT_TYPES,
+    PacketDecoder,
+    array_events,
+    decode_event_array,
+    parse_event_packet,
+)
 
-EVENT_ARRAY = "dvs_msgs/msg/EventArray"
 CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
-
-DVS_MSG_DEFINITIONS = {
-    "dvs_msgs/msg/Event": "uint16 x\nuint16 y\ntime ts\nbool polarity\n",
-    EVENT_ARRAY: "std_msgs/Header header\nuint32 height\nuint32 width\ndvs_msgs/Event[] events\n",
-}
-"""Message definitions of dvs_msgs (rpg_dvs_ros), in ROS .msg syntax."""
-
-_WIRE_EVENT = np.dtype(
-    [("x", "<u2"), ("y", "<u2"), ("sec", "<u4"), ("nsec", "<u4"), ("polarity", "u1")]
-)  # 13 bytes, packed, as ROS1 serialises dvs_msgs/Event
-
-
-def dvs_typestore():
-    """A ROS1 Noetic ``rosbags`` typestore with ``dvs_msgs`` registered."""
-    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
-
-    store = get_typestore(Stores.ROS1_NOETIC)
-    types = {}
-    for name, text in DVS_MSG_DEFINITIONS.items():
-        types.update(get_types_from_msg(text, name))
-    store.register(types)
-    return store
-
-
-def decode_event_array(raw: bytes | memoryview, where: str) -> tuple[np.ndarray, int, int]:
-    """Decode one serialised EventArray.
-
-    Returns ``(wire_events, width, height)`` with ``wire_events`` of the packed wire dtype.
-    Raises :class:`FormatError` if the message is shorter than its own lengths say.
-    """
-    buf = memoryview(raw)
-    try:
-        frame_len = int.from_bytes(buf[12:16], "little")
-        off = 16 + frame_len
-        height = int.from_bytes(buf[off : off + 4], "little")
-        width = int.from_bytes(buf[off + 4 : off + 8], "little")
-        n = int.from_bytes(buf[off + 8 : off + 12], "little")
-        off += 12
-        if len(buf) < off or off + n * _WIRE_EVENT.itemsize > len(buf):
-            raise ValueError
-    except ValueError:
-        raise FormatError(f"{where}: EventArray message is truncated or corrupt ({len(buf)} bytes)") from None
-    return np.frombuffer(buf, dtype=_WIRE_EVENT, count=n, offset=off), width, height
 
 
 class RosbagSource:
-    format = "rosbag"
+    """Events of one topic of a ROS1 (``format='rosbag'``) or ROS2 (``'rosbag2'``) bag."""
 
     def __init__(self, path: Path, format: str = "rosbag", topic: str | None = None) -> None:
-        from rosbags.rosbag1 import Reader
-
         self.path = path
+        self.format = format
         self.calibration = None
-        self._where = where = f"{path}: rosbag"
-        self._reader = Reader(path)
+        self._ros2 = format == "rosbag2"
+        self._where = where = f"{path}: {format}"
+        if self._ros2:
+            from rosbags.rosbag2 import Reader
+        else:
+            from rosbags.rosbag1 import Reader
+        kind = "ROS2 bag (a directory with metadata.yaml, or its .db3 / .mcap file)" if self._ros2 else "ROS1 bag"
         try:
+            self._reader = Reader(path)
             self._reader.open()
         except Exception as exc:  # rosbags raises ReaderError, but also struct/KeyError on garbage
-            raise FormatError(f"{where}: not a readable ROS1 bag ({type(exc).__name__}: {exc})") from None
+            raise FormatError(f"{where}: not a readable {kind} ({type(exc).__name__}: {exc})") from None
         try:
             self._pick_topic(topic)
             self._peek()
@@ -98,31 +68,47 @@ class RosbagSource:
 
     def _pick_topic(self, topic: str | None) -> None:
         conns = self._reader.connections
-        event_conns = [c for c in conns if c.msgtype == EVENT_ARRAY]
+        event_conns = [c for c in conns if c.msgtype in EVENT_TYPES]
+        listing = ", ".join(sorted(f"{c.topic} ({c.msgtype})" for c in conns)) or "none"
         if topic is not None:
             chosen = [c for c in conns if c.topic == topic]
             if not chosen:
-                raise FormatError(
-                    f"{self._where}: no topic '{topic}'; topics: "
-                    + ", ".join(sorted(f"{c.topic} ({c.msgtype})" for c in conns))
-                )
-            if chosen[0].msgtype != EVENT_ARRAY:
-                raise FormatError(f"{self._where}: topic '{topic}' has type {chosen[0].msgtype}, not {EVENT_ARRAY}")
+                raise FormatError(f"{self._where}: no topic '{topic}'; topics: {listing}")
+            if chosen[0].msgtype not in EVENT_TYPES:
+                raise FormatError(f"{self._where}: topic '{topic}' has type {chosen[0].msgtype}, not one of "
+                                  f"the event messages evseg reads ({', '.join(EVENT_TYPES)})")
         else:
             topics = sorted({c.topic for c in event_conns})
             if not topics:
-                raise FormatError(
-                    f"{self._where}: no {EVENT_ARRAY} topic; topics: "
-                    + (", ".join(sorted(f"{c.topic} ({c.msgtype})" for c in conns)) or "none")
-                )
+                raise FormatError(f"{self._where}: no event topic ({', '.join(EVENT_TYPES)}); topics: {listing}")
             if len(topics) > 1:
-                raise FormatError(
-                    f"{self._where}: several {EVENT_ARRAY} topics ({', '.join(topics)}); choose one with --topic"
-                )
+                raise FormatError(f"{self._where}: several event topics "
+                                  f"({', '.join(f'{c.topic} ({c.msgtype})' for c in sorted(event_conns, key=lambda c: c.topic))}); "
+                                  "choose one with --topic")
             topic = topics[0]
             chosen = [c for c in event_conns if c.topic == topic]
+        types = {c.msgtype for c in chosen}
+        if len(types) > 1:
+            raise FormatError(f"{self._where}: topic '{topic}' is recorded with several types ({', '.join(sorted(types))})")
         self.topic = topic
+        self.msgtype = types.pop()
         self._conns = chosen
+
+    def _decoder(self) -> Callable[[bytes], tuple[np.ndarray, int, int]]:
+        """A fresh per-pass decoder: raw message -> (events with absolute t in us, width, height)."""
+        where, cdr = f"{self._where}: topic '{self.topic}'", self._ros2
+        if self.msgtype in EVENT_ARRAY_TYPES:
+            def decode(raw):
+                wire, width, height = decode_event_array(raw, cdr, where)
+                return array_events(wire), width, height
+            return decode
+        assert self.msgtype == EVENT_PACKET
+        packets = PacketDecoder(where)
+
+        def decode(raw):
+            packet = parse_event_packet(raw, cdr, where)
+            return packets.decode(packet), packet.width, packet.height
+        return decode
 
     def _camera_info(self):
         """The calibration published beside the event topic (module docstring), or None."""
@@ -140,7 +126,12 @@ class RosbagSource:
             raw = next((raw for _, _, raw in self._reader.messages(connections=conns)), None)
             if raw is None:
                 return None
-            msg = get_typestore(Stores.ROS1_NOETIC).deserialize_ros1(raw, CAMERA_INFO)
+            if self._ros2:
+                msg = get_typestore(Stores.ROS2_HUMBLE).deserialize_cdr(raw, CAMERA_INFO)
+                K, D = msg.k, msg.d
+            else:
+                msg = get_typestore(Stores.ROS1_NOETIC).deserialize_ros1(raw, CAMERA_INFO)
+                K, D = msg.K, msg.D
         except Exception as exc:
             raise FormatError(f"{where}: corrupt CameraInfo message ({type(exc).__name__}: {exc})") from None
         size = self.sensor_size or (int(msg.width), int(msg.height))
@@ -148,14 +139,15 @@ class RosbagSource:
             raise FormatError(f"{where}: CameraInfo is for {msg.width}x{msg.height}, the events are "
                               f"{size[0]}x{size[1]}; pick the event topic of that camera (--topic)")
         try:
-            return calibration_from_camera_info(msg.K, msg.D, msg.distortion_model, size, where)
+            return calibration_from_camera_info(K, D, msg.distortion_model, size, where)
         except CalibrationError as exc:
             raise FormatError(str(exc)) from None
 
-    def _messages(self):
+    def _messages(self) -> Iterator[tuple[np.ndarray, int, int]]:
+        decode = self._decoder()
         try:
             for _, _, raw in self._reader.messages(connections=self._conns):
-                yield raw
+                yield decode(raw)
         except FormatError:
             raise
         except Exception as exc:
@@ -164,24 +156,19 @@ class RosbagSource:
     def _peek(self) -> None:
         self.sensor_size = None
         self.t_offset_us = 0
-        for raw in self._messages():
-            wire, width, height = decode_event_array(raw, self._where)
+        for ev, width, height in self._messages():
             if width > 0 and height > 0 and self.sensor_size is None:
                 self.sensor_size = (width, height)
-            if len(wire):
-                self.t_offset_us = int(wire["sec"][0]) * 1_000_000 + int(wire["nsec"][0]) // 1000
+            if len(ev):
+                self.t_offset_us = int(ev["t"][0])
                 break
 
     def chunks(self, chunk_events: int) -> Iterator[Chunk]:
         return batched_chunks(self._events(), chunk_events)
 
     def _events(self) -> Iterator[np.ndarray]:
-        for raw in self._messages():
-            wire, _, _ = decode_event_array(raw, self._where)
-            ev = np.empty(len(wire), dtype=EVENT_DTYPE)
-            ev["x"], ev["y"] = wire["x"], wire["y"]
-            ev["t"] = wire["sec"].astype(np.int64) * 1_000_000 + wire["nsec"].astype(np.int64) // 1000 - self.t_offset_us
-            ev["p"] = np.where(wire["polarity"] > 0, 1, -1)
+        for ev, _, _ in self._messages():
+            ev["t"] -= self.t_offset_us
             yield ev
 
     def close(self) -> None:

@@ -76,40 +76,95 @@ def text_lines(ev: np.ndarray, size=(64, 48)) -> str:
     return "\n".join(lines) + "\n"
 
 
+def mono_bytes(ev: np.ndarray, time_base_ns: int) -> bytes:
+    """event_camera_msgs 'mono' encoding: one little-endian uint64 per event (polarity bit 63,
+    y bits 48-62, x bits 32-47, time since ``time_base_ns`` in ns in bits 0-31)."""
+    words = []
+    for e in ev:
+        dt = int(e["t"]) * 1000 - time_base_ns
+        assert 0 <= dt < 2**32
+        words.append(((1 if e["p"] > 0 else 0) << 63) | (int(e["y"]) << 48) | (int(e["x"]) << 32) | dt)
+    return struct.pack(f"<{len(words)}Q", *words)
+
+
 def write_bag(path, topics: dict[str, list[np.ndarray]], t0_ns: int = 1_519_939_282_250_708_000,
               extra_topic: bool = True, width: int = 64, height: int = 48,
-              camera_info: dict[str, dict] | None = None) -> None:
-    """One EventArray message per array, per topic; times = t0 + event t (us).
-    ``camera_info``: topic -> sensor_msgs/CameraInfo fields (K, D, distortion_model, width,
-    height), one message each."""
-    from rosbags.rosbag1 import Writer
+              camera_info: dict[str, dict] | None = None, ros2: str | None = None,
+              msgtype: str = "dvs_msgs/msg/EventArray", encoding: str = "evt3") -> None:
+    """One event message per array, per topic, serialised by ``rosbags`` (not by evseg).
 
-    from evseg.io.rosbag import EVENT_ARRAY, dvs_typestore
+    ``ros2``: None writes a ROS1 bag, ``"sqlite3"`` or ``"mcap"`` a ROS2 bag directory with that
+    storage. ``msgtype``: an EventArray type (times = t0 + event t in us) or
+    ``event_camera_msgs/msg/EventPacket`` with ``encoding`` 'evt3' (the events of all of a
+    topic's arrays as one EVT 3.0 stream, event t = sensor time in us, cut into one packet per
+    array at its first event's words) or 'mono' (time_base = the array's first event, in ns),
+    or any other string (an empty packet of that encoding). ``camera_info``: topic ->
+    sensor_msgs/CameraInfo fields (K, D, distortion_model, width, height), one message each.
+    """
+    from evseg.io.ros_messages import EVENT_PACKET, event_typestore
 
-    store = dvs_typestore()
+    store = event_typestore(ros2 is not None)
     Time = store.types["builtin_interfaces/msg/Time"]
     Header = store.types["std_msgs/msg/Header"]
-    Event = store.types["dvs_msgs/msg/Event"]
-    EventArray = store.types[EVENT_ARRAY]
-    with Writer(path) as w:
+
+    def header(seq, ns):
+        stamp = Time(ns // 10**9, ns % 10**9)
+        return Header(stamp, "cam") if ros2 else Header(seq, stamp, "cam")
+
+    def serialize(msg, kind):
+        return store.serialize_cdr(msg, kind) if ros2 else store.serialize_ros1(msg, kind)
+
+    if ros2:
+        from rosbags.rosbag2 import StoragePlugin, Writer
+
+        writer = Writer(path, version=9, storage_plugin=StoragePlugin[ros2.upper()])
+    else:
+        from rosbags.rosbag1 import Writer
+
+        writer = Writer(path)
+    with writer as w:
         for topic, info in (camera_info or {}).items():
             CameraInfo, roi = store.types["sensor_msgs/msg/CameraInfo"], store.types["sensor_msgs/msg/RegionOfInterest"]
-            msg = CameraInfo(Header(0, Time(t0_ns // 10**9, t0_ns % 10**9), "cam"), info.get("height", height),
+            msg = CameraInfo(header(0, t0_ns), info.get("height", height),
                              info.get("width", width), info["distortion_model"], np.asarray(info["D"], dtype=np.float64),
                              np.asarray(info["K"], dtype=np.float64), np.eye(3).ravel(), np.zeros(12), 0, 0,
                              roi(0, 0, 0, 0, False))
             conn = w.add_connection(topic, "sensor_msgs/msg/CameraInfo", typestore=store)
-            w.write(conn, t0_ns, store.serialize_ros1(msg, "sensor_msgs/msg/CameraInfo"))
+            w.write(conn, t0_ns, serialize(msg, "sensor_msgs/msg/CameraInfo"))
         if extra_topic:
             conn = w.add_connection("/chatter", "std_msgs/msg/String", typestore=store)
-            w.write(conn, t0_ns, store.serialize_ros1(store.types["std_msgs/msg/String"]("hi"), "std_msgs/msg/String"))
+            w.write(conn, t0_ns, serialize(store.types["std_msgs/msg/String"]("hi"), "std_msgs/msg/String"))
         for topic, msgs in topics.items():
-            conn = w.add_connection(topic, EVENT_ARRAY, typestore=store)
+            conn = w.add_connection(topic, msgtype, typestore=store)
+            if msgtype == EVENT_PACKET:
+                Packet = store.types[EVENT_PACKET]
+                if encoding == "evt3":
+                    cuts = np.cumsum([0] + [len(ev) for ev in msgs])
+                    stream = np.concatenate(msgs)
+                    # One stream cut at each array's first words: a packet does not repeat the
+                    # time and row its first events share with the packet before, so decoding
+                    # needs the state carried over from it.
+                    starts = [len(evt3_bytes(stream[:c], header="")) for c in cuts]
+                    data = evt3_bytes(stream, header="")
+                for seq, ev in enumerate(msgs):
+                    stamp_ns = t0_ns + int(ev["t"][-1]) * 1000 if len(ev) else t0_ns
+                    if encoding == "evt3":
+                        raw, base = data[starts[seq]:starts[seq + 1]], 0
+                    elif encoding == "mono":
+                        base = int(ev["t"][0]) * 1000 if len(ev) else 0
+                        raw = mono_bytes(ev, base)
+                    else:
+                        raw, base = b"", 0
+                    msg = Packet(header(seq, stamp_ns), height, width, seq, base, encoding, False,
+                                 np.frombuffer(raw, dtype=np.uint8))
+                    w.write(conn, stamp_ns, serialize(msg, EVENT_PACKET))
+                continue
+            Event, EventArray = store.types[msgtype.replace("EventArray", "Event")], store.types[msgtype]
             for seq, ev in enumerate(msgs):
                 events = []
                 for e in ev:
                     ns = t0_ns + int(e["t"]) * 1000
                     events.append(Event(int(e["x"]), int(e["y"]), Time(ns // 10**9, ns % 10**9), bool(e["p"] > 0)))
                 stamp_ns = t0_ns + int(ev["t"][-1]) * 1000 if len(ev) else t0_ns
-                msg = EventArray(Header(seq, Time(stamp_ns // 10**9, stamp_ns % 10**9), "cam"), height, width, events)
-                w.write(conn, stamp_ns, store.serialize_ros1(msg, EVENT_ARRAY))
+                msg = EventArray(header(seq, stamp_ns), height, width, events)
+                w.write(conn, stamp_ns, serialize(msg, msgtype))

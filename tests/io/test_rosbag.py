@@ -1,4 +1,6 @@
-"""ROS1 bag reader: bags written here with rosbags' own writer (no ROS installed)."""
+"""ROS1 and ROS2 bag reader: bags written here with rosbags' own writers and serialisers (no ROS
+installed), so the numpy decoders of evseg.io.ros_messages are checked against another
+implementation of the wire formats."""
 
 from __future__ import annotations
 
@@ -30,10 +32,10 @@ def test_several_event_topics_need_a_choice(tmp_path):
     a, b = sample_events(10, seed=4), sample_events(7, seed=5)
     p = tmp_path / "two.bag"
     write_bag(p, {"/left/events": [a], "/right/events": [b]})
-    with pytest.raises(FormatError, match=r"several dvs_msgs/msg/EventArray topics \(/left/events, /right/events\); choose one with --topic"):
+    with pytest.raises(FormatError, match=r"several event topics \(/left/events \(dvs_msgs/msg/EventArray\), /right/events \(dvs_msgs/msg/EventArray\)\); choose one with --topic"):
         read_events(p)
     assert len(read_events(p, topic="/right/events")) == 7
-    with pytest.raises(FormatError, match=r"topic '/chatter' has type std_msgs/msg/String"):
+    with pytest.raises(FormatError, match=r"topic '/chatter' has type std_msgs/msg/String, not one of the event messages evseg reads \(dvs_msgs/msg/EventArray, prophesee_event_msgs/msg/EventArray, event_camera_msgs/msg/EventPacket\)"):
         read_events(p, topic="/chatter")
     with pytest.raises(FormatError, match=r"no topic '/nope'; topics: /chatter \(std_msgs/msg/String\)"):
         read_events(p, topic="/nope")
@@ -42,7 +44,7 @@ def test_several_event_topics_need_a_choice(tmp_path):
 def test_bag_without_events(tmp_path):
     p = tmp_path / "none.bag"
     write_bag(p, {})
-    with pytest.raises(FormatError, match=r"no dvs_msgs/msg/EventArray topic; topics: /chatter"):
+    with pytest.raises(FormatError, match=r"no event topic \(dvs_msgs/msg/EventArray, .*\); topics: /chatter \(std_msgs/msg/String\)"):
         read_events(p)
 
 
@@ -76,3 +78,78 @@ def test_bad_camera_info_names_the_topic_and_field(tmp_path):
         "/dvs/camera_info": {"K": K_INFO, "D": [], "distortion_model": "plumb_bob", "width": 346, "height": 260}})
     with pytest.raises(FormatError, match=r"CameraInfo is for 346x260, the events are 64x48"):
         read_events(p)
+
+
+def _same_events(stream, ev):
+    np.testing.assert_array_equal(stream.events["t"], ev["t"] - ev["t"][0])
+    for k in "xyp":
+        np.testing.assert_array_equal(stream.events[k], ev[k])
+
+
+@pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
+@pytest.mark.parametrize("msgtype", ["dvs_msgs/msg/EventArray", "prophesee_event_msgs/msg/EventArray"])
+def test_ros2_bag_round_trip_directory_and_storage_file(tmp_path, storage, msgtype):
+    # 1, 2, 3 and 70 events per message: the CDR event array's first element has another stride
+    # than the rest, so each length is a separate case of the decoder.
+    ev = sample_events(76, seed=7)
+    d = tmp_path / "bag2"
+    write_bag(d, {"/dvs/events": [ev[:1], ev[1:3], ev[3:3], ev[3:6], ev[6:]]}, ros2=storage, msgtype=msgtype)
+    assert detect_format(d) == "rosbag2"
+    with open_recording(d, chunk_events=4) as rec:
+        assert (rec.format, rec.sensor_size) == ("rosbag2", (64, 48))
+        assert rec.t_offset_us == 1_519_939_282_250_708 + int(ev["t"][0])
+        assert [len(c) for c in rec.chunks()] == [6, 70]
+    _same_events(read_events(d), ev)
+    (storage_file,) = [f for f in d.iterdir() if f.suffix in (".db3", ".mcap")]
+    assert detect_format(storage_file) == "rosbag2"
+    _same_events(read_events(storage_file), ev)
+
+
+@pytest.mark.parametrize("ros2", [None, "sqlite3"])
+@pytest.mark.parametrize("encoding", ["evt3", "mono"])
+def test_event_camera_msgs_packets(tmp_path, ros2, encoding):
+    # evt3: times are the sensor's clock (us); the stream is cut between packets, so each
+    # packet continues the time and row state of the one before.
+    ev = sample_events(90, seed=8, max_dt=3000)
+    p = tmp_path / ("pk" if ros2 else "pk.bag")
+    write_bag(p, {"/event_camera/events": [ev[:40], ev[40:41], ev[41:]]}, ros2=ros2,
+              msgtype="event_camera_msgs/msg/EventPacket", encoding=encoding, width=64, height=48)
+    with open_recording(p) as rec:
+        assert rec.sensor_size == (64, 48)
+        assert rec.t_offset_us == int(ev["t"][0])
+    _same_events(read_events(p), ev)
+
+
+def test_event_packets_with_an_encoding_evseg_does_not_read(tmp_path):
+    write_bag(p := tmp_path / "lc.bag", {"/cam/events": [sample_events(5)]},
+              msgtype="event_camera_msgs/msg/EventPacket", encoding="libcaer_cmp")
+    with pytest.raises(FormatError, match=r"lc.bag: rosbag: topic '/cam/events': EventPacket encoding "
+                                          r"'libcaer_cmp' is not read by evseg \(supported: evt3, mono\)"):
+        read_events(p)
+
+
+def test_ros2_camera_info_and_topic_choice(tmp_path):
+    a, b = sample_events(20, seed=9), sample_events(12, seed=10)
+    d = tmp_path / "stereo"
+    write_bag(d, {"/left/events": [a], "/right/events": [b]}, ros2="mcap", camera_info={
+        "/right/camera_info": {"K": K_INFO, "D": [0.01, -0.002, 0.0005, 0.0001, 0.0], "distortion_model": "plumb_bob"}})
+    with pytest.raises(FormatError, match=r"several event topics"):
+        read_events(d)
+    s = read_events(d, topic="/right/events")
+    assert len(s) == 12 and s.calibration.model == "radtan"
+    np.testing.assert_array_equal(s.calibration.K.ravel(), K_INFO)
+    assert read_events(d, topic="/left/events").calibration is None
+
+
+def test_directories_that_are_not_ros2_bags(tmp_path):
+    (d := tmp_path / "frames").mkdir()
+    with pytest.raises(FormatError, match=r"frames: is a directory, not a recording file \(a ROS2 bag directory holds metadata.yaml\)"):
+        read_events(d)
+    with pytest.raises(FormatError, match=r"frames: rosbag2: not a readable ROS2 bag"):
+        read_events(d, format="rosbag2")
+    with pytest.raises(FormatError, match=r"is a directory, not a recording file \(only a ROS2 bag"):
+        read_events(d, format="npz")
+    (f := tmp_path / "x.mcap").write_bytes(b"not an mcap file at all")
+    with pytest.raises(FormatError, match=r"x.mcap: not a valid rosbag2 file: bad magic bytes at offset 0 "
+                                          r"\(expected b'SQLite format 3\\x00' or b'\\x89MCAP0\\r\\n'"):
+        read_events(f)
