@@ -36,6 +36,10 @@ def format_summary(path: Path, s) -> str:
     lines = [
         f"file:         {path}",
         f"format:       {s.format}",
+    ]
+    if s.topic is not None:
+        lines.append(f"topic:        {s.topic} ({s.message_type})")
+    lines += [
         f"sensor size:  {size}",
         f"events:       {s.n_events:,}",
     ]
@@ -50,7 +54,8 @@ def format_summary(path: Path, s) -> str:
         ]
     else:
         lines.append(f"t_offset:     {s.t_offset_us:,} us")
-    lines.append(f"calibration:  {'K, D in file' if s.has_calibration else 'none'}")
+    where = "camera_info beside the topic" if s.topic is not None else "file"
+    lines.append(f"calibration:  {f'K, D in {where}' if s.has_calibration else 'none'}")
     return "\n".join(lines)
 
 

@@ -79,6 +79,8 @@ class Recording:
         sensor_size_source: ``"user"``, ``"file"``, ``"inferred"`` or ``None``.
         t_offset_us: absolute time (us) of ``t == 0`` in the chunks.
         calibration: intrinsics stored in the file, if any.
+        topic, message_type: for bags, the topic read and its message type
+            (``'dvs_msgs/msg/EventArray'``, ...); ``None`` for other formats.
     """
 
     def __init__(
@@ -106,6 +108,8 @@ class Recording:
             self.sensor_size, self.sensor_size_source = None, None
         self.t_offset_us = int(source.t_offset_us)
         self.calibration = source.calibration
+        self.topic: str | None = getattr(source, "topic", None)
+        self.message_type: str | None = getattr(source, "msgtype", None)
 
     def __enter__(self) -> "Recording":
         return self

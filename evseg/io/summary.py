@@ -22,6 +22,7 @@ class RecordingSummary:
         t_offset_us: absolute time of ``t == 0`` (us).
         x_range, y_range: ``(min, max)`` coordinates in px, ``None`` without events.
         has_calibration: the file carries intrinsics.
+        topic, message_type: for bags, the topic read and its message type; else ``None``.
     """
 
     format: str
@@ -35,6 +36,8 @@ class RecordingSummary:
     x_range: tuple[int, int] | None
     y_range: tuple[int, int] | None
     has_calibration: bool
+    topic: str | None = None
+    message_type: str | None = None
 
     @property
     def duration_us(self) -> int:
@@ -80,4 +83,6 @@ def summarize(rec: Recording) -> RecordingSummary:
         x_range=(xmin, xmax) if n else None,
         y_range=(ymin, ymax) if n else None,
         has_calibration=rec.calibration is not None,
+        topic=rec.topic,
+        message_type=rec.message_type,
     )

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from evfiles import es_bytes, sample_events, text_lines
+from evfiles import es_bytes, sample_events, text_lines, write_bag
 from evseg.cli import main
 from evseg.io import read_events
 
@@ -34,6 +34,27 @@ def test_info_inferred_and_given_sizes(tmp_path, capsys):
     assert "(inferred as max+1)" in capsys.readouterr().out
     assert main(["info", str(p), "--sensor-size", "100x90"]) == 0
     assert "100x90 px (given)" in capsys.readouterr().out
+
+
+def test_info_names_the_topic_read_from_a_bag(tmp_path, capsys):
+    # A user with a stereo ROS2 bag must see which camera's events (and calibration) info read.
+    d = tmp_path / "stereo"
+    write_bag(d, {"/left/events": [sample_events(20, seed=1)], "/right/events": [sample_events(12, seed=2)]},
+              ros2="mcap", msgtype="event_camera_msgs/msg/EventPacket", encoding="mono",
+              camera_info={"/right/camera_info": {"K": [60.0, 0, 32.0, 0, 61.0, 24.0, 0, 0, 1.0],
+                                                  "D": [0.0] * 5, "distortion_model": "plumb_bob"}})
+    assert main(["info", str(d), "--topic", "/right/events"]) == 0
+    out = capsys.readouterr().out
+    assert "format:       rosbag2\ntopic:        /right/events (event_camera_msgs/msg/EventPacket)\n" in out
+    assert "events:       12\n" in out
+    assert "calibration:  K, D in camera_info beside the topic" in out
+    assert main(["info", str(d), "--topic", "/left/events"]) == 0
+    out = capsys.readouterr().out
+    assert "events:       20\n" in out and "calibration:  none" in out
+    p = tmp_path / "e.es"
+    p.write_bytes(es_bytes(sample_events(5, seed=3)))
+    assert main(["info", str(p)]) == 0
+    assert "topic:" not in capsys.readouterr().out
 
 
 def test_user_errors_are_one_line_exit_2(tmp_path, capsys):
