@@ -352,6 +352,44 @@ class MotionSegmentationPipeline:
         # window index -> (B, 4) boxes where that window's flow gets tracked_mirrors looks
         self._tracked_boxes: dict[int, np.ndarray] = {}
 
+    def warm_up(self) -> float:
+        """Pay the one-time set-up now (compiling the encoder's loops, the ONNX session's first
+        run, the fitter's first solve: the first window of a run takes ~0.5-1 s on 2 cores) by
+        segmenting a few windows of synthetic moving edges, then forget them (:meth:`reset`).
+        Call it before a live source starts, so that its first windows are not late. Returns
+        the seconds it took. With ``flow="precomputed"`` only the segmentation is warmed."""
+        from evseg.veckm_flow.synthetic import translating_edges
+
+        tic = time.perf_counter()
+        cfg = self.config
+        span = 3 * int(cfg.window_us)
+        scene = translating_edges(self.sensor_size, n_edges=40, duration_us=span, seed=0)
+        for window in stream_time_windows([scene.events], cfg.window_us, cfg.stride_us):
+            flow = None
+            if self._flow_fn is None:
+                ev = window.events
+                flow = _FlowSlice(np.arange(len(ev)), scene.nx[window.first_event:window.first_event + len(ev)],
+                                  scene.ny[window.first_event:window.first_event + len(ev)], None)
+            self.process(window, flow)
+        self.reset()
+        return time.perf_counter() - tic
+
+    def skip_windows(self, n: int) -> None:
+        """The next ``n`` windows will not be segmented (a live source the pipeline fell behind,
+        :func:`evseg.live.run_live`): move each object track's box on by ``n`` more strides with
+        its last displacement, so an object whose motion holds is matched to its track (and keeps
+        its id) in the window after the gap. The skipped windows do not count as misses.
+        Motion prediction from the previous window needs nothing: it uses the windows' times."""
+        n = int(n)
+        if n < 0:
+            raise ValueError(f"skip_windows: n must be >= 0, got {n}")
+        if n == 0:
+            return
+        self._tracker.predict({oid: (dx * n, dy * n) for oid, (_, (dx, dy)) in self._track_motion.items()},
+                              self.sensor_size)
+        # Boxes remembered for tracked_mirrors are keyed by window index and were moved for no gap.
+        self._tracked_boxes = {}
+
     def _make_flow_fn(self) -> FlowFn | None:
         cfg = self.config
         if cfg.flow == "precomputed":

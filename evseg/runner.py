@@ -44,6 +44,9 @@ class SegmentJob:
     mirrors: int = 1
     tracked_mirrors: int = 1
     tracked_max_targets: int | None = None
+    realtime: bool = False
+    speed: float = 1.0
+    max_lag_ms: float = 20.0
     masks: bool = False
     video: Path | None = None
     frames: Path | None = None
@@ -77,6 +80,14 @@ def build_pipeline_config(job: SegmentJob):
             raise ConfigError(
                 f"--window-ms plus --flow-context-ms must be at most {MAX_SLICE_SPAN_US / 1000:.0f} ms "
                 f"(the learned flow's longest slice), got {job.window_ms} + {job.flow_context_ms}")
+    if job.realtime:
+        if job.flow_file is not None:
+            raise ConfigError("--realtime replays a recording as a live camera, which has no precomputed "
+                              "flow: leave out --flow")
+        if not job.speed > 0:
+            raise ConfigError(f"--speed must be positive, got {job.speed}")
+        if not job.max_lag_ms >= 0:
+            raise ConfigError(f"--max-lag-ms must be >= 0, got {job.max_lag_ms}")
     seg = load_segmentation_config(job.config) if job.config else SegmentationConfig()
     return PipelineConfig(
         window_us=int(round(job.window_ms * 1000)),
@@ -85,7 +96,7 @@ def build_pipeline_config(job: SegmentJob):
         flow="precomputed" if job.flow_file is not None else job.flow_method,
         model_path=None if job.model is None else str(job.model),
         threads=job.threads,
-        overlap=job.overlap,
+        overlap=job.overlap and not job.realtime,  # a live window cannot be read ahead
         worker="process" if job.worker == "auto" else job.worker,  # auto: see run_segment_job
         min_track_windows=job.min_track_windows,
         fast_edges=job.fast_edges,
@@ -198,7 +209,19 @@ def run_segment_job(job: SegmentJob) -> str:
                     seen[0] += len(c)
                     yield c
 
-            for res in pipe.run(counted(rec.chunks()), precomputed_flow=flow):
+            latencies: list[float] = []
+            dropped = [0]
+            if job.realtime:
+                from evseg.live import replay, run_live
+
+                pipe.warm_up()  # the first window must not pay the one-time set-up
+                t_wall = time.perf_counter()
+                live = run_live(pipe, replay(counted(rec.chunks()), speed=job.speed),
+                                max_lag_us=int(round(job.max_lag_ms * 1000)))
+                results = _live_windows(live, latencies, dropped)
+            else:
+                results = pipe.run(counted(rec.chunks()), precomputed_flow=flow)
+            for res in results:
                 # Events before this window and not in any earlier one (gaps when stride > window).
                 if res.first_event > writer.n_written:
                     writer.add_unassigned(res.first_event - writer.n_written)
@@ -229,8 +252,23 @@ def run_segment_job(job: SegmentJob) -> str:
     speed = ""
     if t_first is not None and wall > 0:
         speed = f" in {wall:.1f} s ({(t_last - t_first) / 1e6 / wall:.2f}x real time)"
+    live = ""
+    if job.realtime and latencies:
+        live = (f"; replayed at {job.speed:g}x the sensor's pace: {n_windows} of {n_windows + dropped[0]} windows "
+                f"segmented, {dropped[0]} dropped to keep up (their events are labelled -1), labels "
+                f"{np.median(latencies):.1f} ms after their window was complete (median; p90 "
+                f"{np.percentile(latencies, 90):.1f} ms)")
     return (
         f"wrote {job.out}: {writer.n_written} events, {n_windows} windows{speed}, "
         f"{len(ids)} distinct objects, {n_objects / max(n_windows, 1):.2f} objects per window"
-        + (f"; video {job.video}" if job.video else "") + inferred
+        + live + (f"; video {job.video}" if job.video else "") + inferred
     )
+
+
+def _live_windows(live, latencies: list[float], dropped: list[int]):
+    """The windows of a live run (:func:`evseg.live.run_live`), noting each one's latency (ms)
+    and the windows dropped before it."""
+    for res in live:
+        latencies.append(res.latency_ms)
+        dropped[0] += res.dropped
+        yield res.window

@@ -26,6 +26,7 @@ TARGETS = {
     "flow": "evseg.veckm_flow.bench:benchmark",
     "seg": "evseg.segmentation.bench:benchmark",
     "pipeline": "evseg.pipeline_bench:benchmark",
+    "live": "evseg.live_bench:benchmark",
     "memory": "evseg.memory_bench:benchmark",
     "scaling": "evseg.scaling_bench:benchmark",
 }
