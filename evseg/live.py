@@ -152,13 +152,18 @@ def run_live(
 ) -> Iterator[LiveResult]:
     """Segment a live source window by window, dropping windows when it falls behind.
 
-    The source is read on its own thread (packets arrive while a window is segmented). Before
-    each window, if the newest event that has arrived is more than ``max_lag_us`` past the
+    The source is read on its own thread (packets arrive while a window is segmented). When a
+    window is picked, if the newest event that has arrived is more than ``max_lag_us`` past the
     window's end, the windows up to the newest complete one are dropped (their events get no
-    labels) and that one is segmented; the pipeline's object tracks are moved on over the gap
+    labels) and that one is taken; the pipeline's object tracks are moved on over the gap
     (:meth:`~evseg.pipeline.MotionSegmentationPipeline.skip_windows`), so an object whose motion
-    holds keeps its id. Windows are segmented one after the other (the pipeline's ``overlap``
-    does not apply: a live window cannot be read before it has happened).
+    holds keeps its id.
+
+    With the pipeline's ``overlap`` (its default), the next window is picked and its normal flow
+    and graph are computed by the pipeline's worker (``worker``: thread or process) while the
+    current one is segmented, as :meth:`~evseg.pipeline.MotionSegmentationPipeline.run` does:
+    more windows per second when the pipeline cannot keep up; without it each window is picked
+    once the one before has its labels, which gives the lowest latency when it can.
 
     Args:
         pipeline: a :class:`~evseg.pipeline.MotionSegmentationPipeline` (its learned or plane-fit
@@ -167,7 +172,7 @@ def run_live(
             e.g. :func:`replay` of a recording or a camera driver's packet iterator.
         max_lag_us: how far (us) behind the newest event a window may end and still be
             segmented; None never drops (every window is segmented, however late: the results
-            are those of ``pipeline.run`` with ``overlap=False``).
+            are those of ``pipeline.run``).
         clock: wall clock (s) for ``latency_ms``.
 
     Yields:
@@ -180,81 +185,154 @@ def run_live(
     if cfg.flow == "precomputed":
         raise ConfigError("a live run estimates its own normal flow: pipeline.flow must be learned or planefit, "
                           "not precomputed")
-    window_us = int(cfg.window_us)
-    stride_us = int(cfg.stride_us or cfg.window_us)
-    kept_us = int(pipeline.kept_us)
-
     packets: queue.Queue = queue.Queue()
     stop = threading.Event()
     reader = threading.Thread(target=_read_into, args=(source, packets, clock, stop),
                               name="evseg-live-reader", daemon=True)
     reader.start()
-
-    buf = np.empty(0, dtype=EVENT_DTYPE)
-    buf_first = 0  # position in the source of buf[0]
-    arrivals: list[tuple[int, float]] = []  # (last event time, arrival) of the packets in buf
-    t0: int | None = None
-    index = 0
-    ended = False
+    windows = _LiveWindows(packets, int(cfg.window_us), int(cfg.stride_us or cfg.window_us),
+                           int(pipeline.kept_us), max_lag_us)
     try:
-        while True:
-            # Take every packet that has arrived; wait for one when no window is ready.
-            block = not ended and (t0 is None or not len(buf) or t0 + window_us > int(buf["t"][-1]))
-            new = [buf] if len(buf) else []
-            while True:
-                try:
-                    packet, arrived = packets.get(block=block)
-                except queue.Empty:
-                    break
-                block = False
-                if packet is _END:
-                    ended = True
-                    break
-                if isinstance(packet, BaseException):
-                    raise packet
-                if len(packet) == 0:
-                    continue
-                _check_packet(packet, new[-1] if new else buf)
-                if t0 is None:
-                    t0 = int(packet["t"][0])
-                new.append(packet)
-                arrivals.append((int(packet["t"][-1]), arrived))
-            # One copy per drain, not per packet (a backlog of many packets would be quadratic).
-            if len(new) > 1:
-                buf = np.concatenate(new)
-            elif new:
-                buf = new[0]
-            if t0 is None or not len(buf):
-                if ended:
-                    return
-                continue
-            t_last = int(buf["t"][-1])
-            if not ended and t0 + window_us > t_last:
-                continue  # the window is not complete yet
-            if ended and t0 > t_last:
-                return
-            newest = newest_window_start(t0, t_last, window_us, stride_us, final=ended)
-            lag = max(t_last - (t0 + window_us), 0)
-            dropped = 0
-            if max_lag_us is not None and lag > max_lag_us and newest > t0:
-                dropped = (newest - t0) // stride_us
-                pipeline.skip_windows(dropped)
-                t0, index = newest, index + dropped
-            t = buf["t"]
-            c0, i0, i1 = np.searchsorted(t, [t0 - kept_us, t0, t0 + window_us], side="left")
-            window = Window(index, t0, t0 + window_us, buf[i0:i1], buf_first + int(i0))
-            completed = next((a for t_end, a in arrivals if t_end >= t0 + window_us), arrivals[-1][1])
-            result = pipeline.process(window, context=buf[c0:i0] if kept_us else None)
-            yield LiveResult(result, int(dropped), int(max(t_last - (t0 + window_us), 0)),
-                             (clock() - completed) * 1e3)
-            index += 1
-            t0 += stride_us
-            # Keep what later windows and their context can still need.
-            drop = int(np.searchsorted(buf["t"], t0 - kept_us, side="left"))
-            buf, buf_first = buf[drop:], buf_first + drop
-            arrivals = [(t_end, a) for t_end, a in arrivals if t_end >= t0 - kept_us] or arrivals[-1:]
+        if pipeline.overlaps:
+            yield from _overlapped(pipeline, windows, clock)
+            return
+        while (live := windows.take(block=True)) is not None:
+            pipeline.skip_windows(live.dropped)
+            result = pipeline.process(live.window, context=live.context)
+            yield LiveResult(result, live.dropped, live.lag_us, (clock() - live.completed_s) * 1e3)
     finally:
         stop.set()
+
+
+@dataclass(frozen=True)
+class _LiveWindow:
+    """A window picked from a live source: its events, the events before it (the flow's
+    context), the windows dropped before it, its lag (us) and when it was complete (s)."""
+
+    window: Window
+    context: np.ndarray | None
+    dropped: int
+    lag_us: int
+    completed_s: float
+
+
+_NOT_READY = object()
+
+
+def _overlapped(pipeline, windows: "_LiveWindows", clock: Callable[[], float]) -> Iterator[LiveResult]:
+    """Window t + 1 is picked, and its flow and graph computed by the pipeline's worker, while
+    window t is segmented, when window t + 1 is complete by the time window t's flow and graph
+    are (the pipeline is behind); otherwise window t is segmented at once, so that its labels
+    never wait for window t + 1."""
+    from concurrent.futures import wait
+
+    pending = None  # (picked window, future of what the segmentation needs)
+    try:
+        while True:
+            if pending is None:
+                live = windows.take(block=True)
+                if live is None:
+                    return
+                pending = (live, pipeline.submit_prepare(live.window, live.context))
+            wait([pending[1]])
+            live = windows.take(block=False)
+            job = None
+            if live is not None and live is not _NOT_READY:
+                job = (live, pipeline.submit_prepare(live.window, live.context))
+            done, pending = pending, job
+            yield _finish(pipeline, *done, clock)
+            if live is None:
+                return
+    finally:
+        if pending is not None:
+            pending[1].cancel()
+
+
+def _finish(pipeline, live: _LiveWindow, future, clock: Callable[[], float]) -> LiveResult:
+    pipeline.skip_windows(live.dropped)
+    result = pipeline.finish_prepared(live.window, future)
+    return LiveResult(result, live.dropped, live.lag_us, (clock() - live.completed_s) * 1e3)
+
+
+class _LiveWindows:
+    """The windows to segment from the packets a reader thread puts in ``packets``, each picked
+    when :meth:`take` is called: the next window, or the newest complete one when the next ends
+    more than ``max_lag_us`` before the newest event that has arrived."""
+
+    def __init__(self, packets: "queue.Queue", window_us: int, stride_us: int, kept_us: int,
+                 max_lag_us: int | None) -> None:
+        self.packets, self.window_us, self.stride_us = packets, window_us, stride_us
+        self.kept_us, self.max_lag_us = kept_us, max_lag_us
+        self.buf = np.empty(0, dtype=EVENT_DTYPE)
+        self.buf_first = 0  # position in the source of buf[0]
+        self.arrivals: list[tuple[int, float]] = []  # (last event time, arrival) of the packets in buf
+        self.t0: int | None = None  # start of the next window
+        self.index = 0
+        self.ended = False
+
+    def _ready(self) -> bool:
+        return self.t0 is not None and len(self.buf) > 0 and (
+            self.t0 + self.window_us <= int(self.buf["t"][-1]) or (self.ended and self.t0 <= int(self.buf["t"][-1])))
+
+    def _drain(self, block: bool) -> None:
+        """Take every packet that has arrived; with ``block``, wait for one first."""
+        new = [self.buf] if len(self.buf) else []
+        while not self.ended:
+            try:
+                packet, arrived = self.packets.get(block=block)
+            except queue.Empty:
+                break
+            block = False
+            if packet is _END:
+                self.ended = True
+                break
+            if isinstance(packet, BaseException):
+                raise packet
+            if len(packet) == 0:
+                continue
+            _check_packet(packet, new[-1] if new else self.buf)
+            if self.t0 is None:
+                self.t0 = int(packet["t"][0])
+            new.append(packet)
+            self.arrivals.append((int(packet["t"][-1]), arrived))
+        # One copy per drain, not per packet (a backlog of many packets would be quadratic).
+        if len(new) > 1:
+            self.buf = np.concatenate(new)
+        elif new:
+            self.buf = new[0]
+
+    def take(self, block: bool):
+        """The next window to segment (:class:`_LiveWindow`); None once the source has ended and
+        every window holding its events was taken; without ``block``, :data:`_NOT_READY` when no
+        window is complete yet (with ``block`` it waits for one)."""
+        self._drain(block=False)
+        while not self._ready():
+            if self.ended:
+                return None
+            if not block:
+                return _NOT_READY
+            self._drain(block=True)
+        w, stride = self.window_us, self.stride_us
+        t_last = int(self.buf["t"][-1])
+        newest = newest_window_start(self.t0, t_last, w, stride, final=self.ended)
+        dropped = 0
+        if self.max_lag_us is not None and t_last - (self.t0 + w) > self.max_lag_us and newest > self.t0:
+            dropped = (newest - self.t0) // stride
+            self.t0, self.index = newest, self.index + dropped
+        t0, buf = self.t0, self.buf
+        c0, i0, i1 = np.searchsorted(buf["t"], [t0 - self.kept_us, t0, t0 + w], side="left")
+        completed = next((a for t_end, a in self.arrivals if t_end >= t0 + w), self.arrivals[-1][1])
+        live = _LiveWindow(Window(self.index, t0, t0 + w, buf[i0:i1], self.buf_first + int(i0)),
+                           buf[c0:i0] if self.kept_us else None, int(dropped), int(max(t_last - (t0 + w), 0)),
+                           completed)
+        self.index += 1
+        self.t0 += stride
+        # Keep what later windows and their context can still need.
+        cut = int(np.searchsorted(buf["t"], self.t0 - self.kept_us, side="left"))
+        self.buf, self.buf_first = buf[cut:], self.buf_first + cut
+        keep = [(t_end, a) for t_end, a in self.arrivals if t_end >= self.t0 - self.kept_us]
+        self.arrivals = keep or self.arrivals[-1:]
+        return live
 
 
 def _check_packet(packet: np.ndarray, buf: np.ndarray) -> None:

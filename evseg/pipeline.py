@@ -328,6 +328,7 @@ class MotionSegmentationPipeline:
         self._worker_process = None  # the "process" worker's pool, started by the first run
         self._waited_s = 0.0  # how long the segmentation waits for the worker (running mean, s)
         self._worker_finalizer = None
+        self._thread_pool = None  # the "thread" worker of submit_prepare (live runs), kept until close()
         self.reset()
 
     def close(self) -> None:
@@ -336,6 +337,9 @@ class MotionSegmentationPipeline:
         if self._worker_finalizer is not None:
             self._worker_finalizer()
         self._worker_process = self._worker_finalizer = None
+        if self._thread_pool is not None:
+            self._thread_pool.shutdown(wait=True, cancel_futures=True)
+            self._thread_pool = None
 
     def __enter__(self) -> "MotionSegmentationPipeline":
         return self
@@ -354,8 +358,9 @@ class MotionSegmentationPipeline:
 
     def warm_up(self) -> float:
         """Pay the one-time set-up now (compiling the encoder's loops, the ONNX session's first
-        run, the fitter's first solve: the first window of a run takes ~0.5-1 s on 2 cores) by
-        segmenting a few windows of synthetic moving edges, then forget them (:meth:`reset`).
+        run, the fitter's first solve, starting the worker process of ``worker="process"``: the
+        first window of a run takes ~0.5-1 s on 2 cores, ~2 s more with the process) by segmenting
+        a few windows of synthetic moving edges, then forget them (:meth:`reset`).
         Call it before a live source starts, so that its first windows are not late. Returns
         the seconds it took. With ``flow="precomputed"`` only the segmentation is warmed."""
         from evseg.veckm_flow.synthetic import translating_edges
@@ -365,12 +370,16 @@ class MotionSegmentationPipeline:
         span = 3 * int(cfg.window_us)
         scene = translating_edges(self.sensor_size, n_edges=40, duration_us=span, seed=0)
         for window in stream_time_windows([scene.events], cfg.window_us, cfg.stride_us):
-            flow = None
             if self._flow_fn is None:
                 ev = window.events
                 flow = _FlowSlice(np.arange(len(ev)), scene.nx[window.first_event:window.first_event + len(ev)],
                                   scene.ny[window.first_event:window.first_event + len(ev)], None)
-            self.process(window, flow)
+                self.process(window, flow)
+            elif self.overlaps:
+                # also starts (worker="process") and warms the worker that live runs use
+                self.finish_prepared(window, self.submit_prepare(window, None))
+            else:
+                self.process(window)
         self.reset()
         return time.perf_counter() - tic
 
@@ -722,6 +731,32 @@ class MotionSegmentationPipeline:
                 pool.shutdown(wait=False, cancel_futures=True)
 
     @property
+    def overlaps(self) -> bool:
+        """Whether a worker computes the next window's flow and graph while one is segmented
+        (``config.overlap`` with a built-in estimator)."""
+        return self._overlap
+
+    def submit_prepare(self, window: Window, context: np.ndarray | None):
+        """Start the worker's share of ``window`` (``config.worker``): its normal flow, with
+        ``context`` (the events of the :attr:`kept_us` before it) as neighbours, and its graph.
+        Returns a future for :meth:`finish_prepared`. For callers that pick the windows
+        themselves (:func:`evseg.live.run_live`); :meth:`run` does this on its own."""
+        boxes = self._tracked_boxes.get(window.index)
+        if self.config.worker == "process":
+            return self._process_pool().submit(_prepare_with_context_in_worker, window, context,
+                                               self._worker_sample_counts(), boxes)
+        if self._thread_pool is None:
+            from concurrent.futures import ThreadPoolExecutor
+
+            self._thread_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="evseg-flow")
+        return self._thread_pool.submit(self._estimate_and_prepare, window, context, (), boxes)
+
+    def finish_prepared(self, window: Window, future) -> WindowResult:
+        """Segment ``window`` once its worker share (:meth:`submit_prepare`) is done: motion
+        prediction, labels, object ids. Windows must be finished in time order."""
+        return self._finish(window, *self._prepared(future, count_wait=self._previous is not None))
+
+    @property
     def kept_us(self) -> int:
         """How long (us) before each window the events are needed (``process``'s ``context``):
         the flow's context and, with the slow-edge look, its history (50 ms with the defaults
@@ -790,6 +825,13 @@ def _prepare_in_worker(window: Window, run_id: int, sample_counts: tuple[int, ..
     history = _WORKER_HISTORY[1]
     context = history.before(window)
     history.add(window)
+    return _WORKER_PIPELINE._estimate_and_prepare(window, context, sample_counts, boxes)
+
+
+def _prepare_with_context_in_worker(window: Window, context: np.ndarray | None, sample_counts: tuple[int, ...],
+                                    boxes: np.ndarray | None = None) -> tuple:
+    """:func:`_prepare_in_worker` for a caller that picks the windows (a live run, which may
+    drop some): the flow's context comes with the window instead of from the worker's history."""
     return _WORKER_PIPELINE._estimate_and_prepare(window, context, sample_counts, boxes)
 
 

@@ -96,7 +96,7 @@ def build_pipeline_config(job: SegmentJob):
         flow="precomputed" if job.flow_file is not None else job.flow_method,
         model_path=None if job.model is None else str(job.model),
         threads=job.threads,
-        overlap=job.overlap and not job.realtime,  # a live window cannot be read ahead
+        overlap=job.overlap,
         worker="process" if job.worker == "auto" else job.worker,  # auto: see run_segment_job
         min_track_windows=job.min_track_windows,
         fast_edges=job.fast_edges,

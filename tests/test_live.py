@@ -23,7 +23,11 @@ def stream():
 
 
 def _pipeline(stream, **kw):
-    return MotionSegmentationPipeline(PipelineConfig(overlap=False, threads=1, **kw), sensor_size=stream.sensor_size)
+    kw = {"overlap": False, **kw}
+    return MotionSegmentationPipeline(PipelineConfig(threads=1, **kw), sensor_size=stream.sensor_size)
+
+
+MODES = [{"overlap": False}, {"overlap": True, "worker": "thread"}, {"overlap": True, "worker": "process"}]
 
 
 def test_replay_hands_out_each_packet_once_the_sensor_clock_passed_its_end():
@@ -66,12 +70,15 @@ def test_newest_window_start():
     assert newest_window_start(40, 45, 10, 10, final=False) == 40  # never before the next window
 
 
-def test_without_dropping_a_live_run_gives_the_sequential_pipeline_s_results(stream):
+@pytest.mark.parametrize("mode", MODES, ids=["sequential", "thread", "process"])
+def test_without_dropping_a_live_run_gives_the_sequential_pipeline_s_results(stream, mode):
     """max_lag_us=None: every window, with the same context, labels, boxes and positions as
-    pipeline.run (overlap off), whatever the packets' sizes."""
+    pipeline.run (overlap off), whatever the packets' sizes, also with the next window
+    prepared by the worker thread or process."""
     expected = list(_pipeline(stream).run(stream))
     packets = [stream.events[i:i + 1_000] for i in range(0, len(stream.events), 1_000)]
-    live = list(run_live(_pipeline(stream), packets, max_lag_us=None))
+    with _pipeline(stream, **mode) as pipe:
+        live = list(run_live(pipe, packets, max_lag_us=None))
     assert [r.window.index for r in live] == [r.index for r in expected] == list(range(6))
     for a, b in zip(expected, live):
         assert b.dropped == 0 and b.latency_ms >= 0
@@ -79,7 +86,8 @@ def test_without_dropping_a_live_run_gives_the_sequential_pipeline_s_results(str
         np.testing.assert_array_equal(a.labels, b.window.labels)
 
 
-def test_a_backlog_is_dropped_down_to_the_newest_complete_window(stream):
+@pytest.mark.parametrize("mode", MODES, ids=["sequential", "thread", "process"])
+def test_a_backlog_is_dropped_down_to_the_newest_complete_window(stream, mode):
     """The source hands over 45 ms of events at once and then waits: the live run drops the
     windows before the newest complete one ([30, 40) ms), segments it, then, once the rest (up
     to 60 ms) has come, the two windows after it without dropping: [40, 50) ends 10 ms before
@@ -91,13 +99,15 @@ def test_a_backlog_is_dropped_down_to_the_newest_complete_window(stream):
 
     def source():
         yield first
-        go_on.wait(timeout=60)
+        assert go_on.wait(timeout=30), "the first window's labels waited for the next window"
         yield ev[len(first):]
 
     results = []
-    for res in run_live(_pipeline(stream), source(), max_lag_us=12_000):
-        results.append(res)
-        go_on.set()
+    with _pipeline(stream, **mode) as pipe:
+        # overlapped, the first window's labels must not wait for the next window to be complete
+        for res in run_live(pipe, source(), max_lag_us=12_000):
+            results.append(res)
+            go_on.set()
     assert [(r.window.index, r.dropped) for r in results] == [(3, 3), (4, 0), (5, 0)]
     assert results[0].window.t0_us == t0 + 30_000
     assert results[0].lag_us == int(first["t"][-1]) - (t0 + 40_000)
@@ -170,7 +180,6 @@ def test_segment_realtime_labels_dropped_windows_unassigned_and_reports_them(str
     for a, b in zip(r.window_t0_us, r.window_t1_us):
         segmented |= (t >= a) & (t < b)
     assert (r.label[~segmented] == -1).all()  # dropped windows' events
-    assert "overlap: false" in r.config
 
 
 def test_segment_realtime_refuses_precomputed_flow(stream, tmp_path, capsys):
