@@ -83,7 +83,8 @@ class PipelineConfig:
             The next window is read
             before this one is segmented: from a file that costs nothing, from a live source
             that the pipeline keeps up with it holds each result until the next window has
-            arrived (one window, 10 ms, later), so set False there for the lowest latency.
+            arrived (one window, 10 ms, later). For live sources use :func:`evseg.live.run_live`,
+            which overlaps only when the pipeline is behind and drops what it cannot reach.
             False: one window after the other.
         worker: where the overlapped share runs: ``"thread"`` (a thread of this process) or
             ``"process"`` (a child process, started at the first overlapped run and kept
