@@ -65,22 +65,34 @@ def evaluate_recording(rec, config, keep_results: bool = False) -> RecordingEval
         if res is None:
             break
         times.append(time.perf_counter() - t0)
-        truth = rec.window_truth(res.t0_us, res.t1_us)
-        visible = [k for k, oid in enumerate(truth.object_ids) if oid in truth.boxes]
-        detected = [res.masks[k] for k in sorted(res.masks)]
-        own = rec.label[res.first_event : res.first_event + len(res.events)]
-        n_events = np.bincount(np.maximum(own, 0).astype(np.int64), minlength=max(truth.object_ids, default=0) + 1)
-        scores.append(score_window(detected, [truth.masks[k] for k in visible],
-                                   [truth.boxes[truth.object_ids[k]] for k in visible],
-                                   truth_events=[int(n_events[truth.object_ids[k]]) for k in visible]))
-        gt = rec.normal_flow[res.first_event + res.flow_index]
-        ok = np.isfinite(gt[:, 0])
-        if ok.any():
-            aes.append(angular_error_deg(res.flow[ok], gt[ok]))
+        scores.append(score_result(rec, res))
+        aes.append(flow_angular_errors(rec, res))
         if keep_results:
             results.append(res)
-    ae = float(np.median(np.concatenate(aes))) if aes else float("nan")
+    errors = np.concatenate(aes) if aes else np.empty(0)
+    ae = float(np.median(errors)) if len(errors) else float("nan")
     return RecordingEvaluation(scores, results, ae, float(np.median(times) * 1e3) if times else float("nan"))
+
+
+def score_result(rec, res) -> WindowScore:
+    """Score one window's result (:class:`~evseg.pipeline.WindowResult`) against the simulated
+    recording's objects visible at the window's mid-time."""
+    truth = rec.window_truth(res.t0_us, res.t1_us)
+    visible = [k for k, oid in enumerate(truth.object_ids) if oid in truth.boxes]
+    detected = [res.masks[k] for k in sorted(res.masks)]
+    own = rec.label[res.first_event : res.first_event + len(res.events)]
+    n_events = np.bincount(np.maximum(own, 0).astype(np.int64), minlength=max(truth.object_ids, default=0) + 1)
+    return score_window(detected, [truth.masks[k] for k in visible],
+                        [truth.boxes[truth.object_ids[k]] for k in visible],
+                        truth_events=[int(n_events[truth.object_ids[k]]) for k in visible])
+
+
+def flow_angular_errors(rec, res) -> np.ndarray:
+    """Angular error (deg) of a window's flows against the ground-truth normal flow, where the
+    recording has one."""
+    gt = rec.normal_flow[res.first_event + res.flow_index]
+    ok = np.isfinite(gt[:, 0])
+    return angular_error_deg(res.flow[ok], gt[ok]) if ok.any() else np.empty(0)
 
 
 def evaluate_pipeline(quick: bool = False, flow: str = "learned", seeds=None, overrides: dict | None = None,

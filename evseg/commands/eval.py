@@ -25,6 +25,7 @@ TARGETS = {
     "pipeline": "evseg.pipeline_eval:evaluate_pipeline_and_oracle",
     "pipeline-real": "evseg.pipeline_real:evaluate_pipeline_real",
     "static": "evseg.pipeline_eval:evaluate_static_camera",
+    "live": "evseg.live_eval:evaluate_live",
 }
 
 
