@@ -39,3 +39,20 @@ def test_readme_opens_with_the_setup_and_test_commands():
         'python3 -m venv .venv && .venv/bin/pip install -e ".[all]" && .venv/bin/evseg demo',
         ".venv/bin/python -m pytest -q",
     ]
+
+
+def github_anchor(heading: str) -> str:
+    """The id GitHub gives a markdown heading: lower case, punctuation dropped, spaces -> '-'.
+
+    >>> github_anchor("Pipeline: segment a recording")
+    'pipeline-segment-a-recording'
+    """
+    return re.sub(r"[^\w\- ]", "", heading.strip().lower()).replace(" ", "-")
+
+
+def test_in_page_links_of_the_readme_name_its_headings():
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    anchors = {github_anchor(h) for h in re.findall(r"^#+ (.+)$", text, flags=re.M)}
+    targets = re.findall(r"\]\(#([^)\s]+)\)", text)
+    assert len(targets) >= 12  # the contents line
+    assert not [t for t in targets if t not in anchors], "README links to headings it does not have"
