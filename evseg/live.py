@@ -36,13 +36,16 @@ import queue
 import threading
 import time
 from dataclasses import dataclass
-from typing import Callable, Iterable, Iterator
+from typing import TYPE_CHECKING, Callable, Iterable, Iterator
 
 import numpy as np
 
 from evseg.errors import ConfigError, EventDataError
 from evseg.events import EVENT_DTYPE
 from evseg.windows import Window
+
+if TYPE_CHECKING:  # pragma: no cover
+    from evseg.pipeline import MotionSegmentationPipeline, WindowResult
 
 DEFAULT_PACKET_US = 1_000
 """Span (us) of the packets :func:`replay` hands out: event cameras' drivers deliver events in
@@ -63,7 +66,7 @@ class LiveResult:
             (the first with an event at or after its end) to its result.
     """
 
-    window: object
+    window: "WindowResult"
     dropped: int
     lag_us: int
     latency_ms: float
@@ -145,7 +148,7 @@ def newest_window_start(t0_us: int, t_last_us: int, window_us: int, stride_us: i
 
 
 def run_live(
-    pipeline,
+    pipeline: "MotionSegmentationPipeline",
     source: Iterable[np.ndarray],
     max_lag_us: int | None = 20_000,
     clock: Callable[[], float] = time.perf_counter,
@@ -172,7 +175,8 @@ def run_live(
             e.g. :func:`replay` of a recording or a camera driver's packet iterator.
         max_lag_us: how far (us) behind the newest event a window may end and still be
             segmented; None never drops (every window is segmented, however late: the results
-            are those of ``pipeline.run``).
+            are those of ``pipeline.run``, and a source faster than the pipeline leaves a
+            growing backlog of events in memory).
         clock: wall clock (s) for ``latency_ms``.
 
     Yields:
