@@ -176,7 +176,10 @@ def run_live(
         max_lag_us: how far (us) behind the newest event a window may end and still be
             segmented; None never drops (every window is segmented, however late: the results
             are those of ``pipeline.run``, and a source faster than the pipeline leaves a
-            growing backlog of events in memory).
+            growing backlog of events in memory). One difference by design: with gaps between
+            windows (stride longer than the window) the gap's events that have arrived are
+            context for the next window's flow, as after dropped windows; ``pipeline.run``
+            never reads them.
         clock: wall clock (s) for ``latency_ms``.
 
     Yields:

@@ -70,16 +70,19 @@ def test_newest_window_start():
     assert newest_window_start(40, 45, 10, 10, final=False) == 40  # never before the next window
 
 
-@pytest.mark.parametrize("mode", MODES, ids=["sequential", "thread", "process"])
-def test_without_dropping_a_live_run_gives_the_sequential_pipeline_s_results(stream, mode):
+@pytest.mark.parametrize("mode, stride_us", [(MODES[0], None), (MODES[1], None), (MODES[2], None),
+                                             (MODES[0], 5_000)],
+                         ids=["sequential", "thread", "process", "overlapping windows"])
+def test_without_dropping_a_live_run_gives_the_sequential_pipeline_s_results(stream, mode, stride_us):
     """max_lag_us=None: every window, with the same context, labels, boxes and positions as
     pipeline.run (overlap off), whatever the packets' sizes, also with the next window
-    prepared by the worker thread or process."""
-    expected = list(_pipeline(stream).run(stream))
+    prepared by the worker thread or process, and with overlapping windows."""
+    expected = list(_pipeline(stream, stride_us=stride_us).run(stream))
     packets = [stream.events[i:i + 1_000] for i in range(0, len(stream.events), 1_000)]
-    with _pipeline(stream, **mode) as pipe:
+    with _pipeline(stream, stride_us=stride_us, **mode) as pipe:
         live = list(run_live(pipe, packets, max_lag_us=None))
-    assert [r.window.index for r in live] == [r.index for r in expected] == list(range(6))
+    n = 6 if stride_us is None else 12
+    assert [r.window.index for r in live] == [r.index for r in expected] == list(range(n))
     for a, b in zip(expected, live):
         assert b.dropped == 0 and b.latency_ms >= 0
         assert (a.t0_us, a.first_event, a.boxes) == (b.window.t0_us, b.window.first_event, b.window.boxes)
