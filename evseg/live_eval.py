@@ -14,7 +14,13 @@ slightly; the offline rows are deterministic.
 from __future__ import annotations
 
 from evseg.metrics import summarize
-from evseg.pipeline_eval import SEGMENTATION_PRESET, SEGMENTATION_PRESET_ORDER, _row, evaluate_recording, score_result
+from evseg.pipeline_eval import (
+    SEGMENTATION_PRESET,
+    SEGMENTATION_PRESET_ORDER,
+    summary_row,
+    evaluate_recording,
+    score_result,
+)
 
 
 def evaluate_live(quick: bool = False, speed: float = 1.0, max_lag_us: int = 20_000, seeds=None,
@@ -67,7 +73,7 @@ def evaluate_live(quick: bool = False, speed: float = 1.0, max_lag_us: int = 20_
             continue
         done, total = (sum(segmented[p][i] for p in members) for i in (0, 1))
         for kind in ("live", "same", "all"):
-            row = _row(f"**{name}**, {names[kind]}", summarize([s for p in members for s in pooled[(p, kind)]]),
+            row = summary_row(f"**{name}**, {names[kind]}", summarize([s for p in members for s in pooled[(p, kind)]]),
                        float("nan"), float("nan"))
             row = {k: v for k, v in row.items() if k not in ("flow median AE deg", "ms/window")}
             rows.append({**row, "windows segmented live %": 100 * done / total})

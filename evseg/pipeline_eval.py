@@ -130,11 +130,11 @@ def evaluate_pipeline(quick: bool = False, flow: str = "learned", seeds=None, ov
             ev = evaluate_recording(rec, cfg)
             s = summarize(ev.scores)
             per_preset.setdefault(preset, []).extend(ev.scores)
-            rows.append(_row(f"{preset} #{seed}", s, ev.flow_median_ae_deg, ev.ms_per_window))
+            rows.append(summary_row(f"{preset} #{seed}", s, ev.flow_median_ae_deg, ev.ms_per_window))
     for preset, scores in per_preset.items():
-        rows.append(_row(f"**{preset} (all)**", summarize(scores), float("nan"), float("nan")))
+        rows.append(summary_row(f"**{preset} (all)**", summarize(scores), float("nan"), float("nan")))
     imo = [s for p, sc in per_preset.items() if p != "ego_only" for s in sc]
-    rows.append(_row("**scenes with objects**", summarize(imo), float("nan"), float("nan")))
+    rows.append(summary_row("**scenes with objects**", summarize(imo), float("nan"), float("nan")))
     return rows
 
 
@@ -158,7 +158,9 @@ def evaluate_pipeline_and_oracle(quick: bool = False, model_path: str | None = N
     return rows
 
 
-def _row(name: str, s, ae: float, ms: float) -> dict:
+def summary_row(name: str, s, ae: float, ms: float) -> dict:
+    """One row of the ``evseg eval pipeline`` table: a :class:`~evseg.metrics.SegmentationSummary`
+    in percent, with the flows' median angular error (deg) and the median ms per window."""
     return {
         "scene": name,
         "windows": s.windows,
@@ -202,7 +204,7 @@ def evaluate_static_camera(quick: bool = False, slow_edges: bool = False, mirror
                 scores.setdefault((flow, name), []).extend(ev.scores)
     rows = []
     for (flow, name), sc in scores.items():
-        row = _row(f"{'ground-truth' if flow == 'precomputed' else 'learned'} flow, {name} settings",
+        row = summary_row(f"{'ground-truth' if flow == 'precomputed' else 'learned'} flow, {name} settings",
                    summarize(sc), float("nan"), float("nan"))
         rows.append({k: v for k, v in row.items() if k not in ("flow median AE deg", "ms/window")})
     return rows
