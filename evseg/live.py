@@ -205,8 +205,7 @@ def run_live(
             return
         while (live := windows.take(block=True)) is not None:
             pipeline.skip_windows(live.dropped)
-            result = pipeline.process(live.window, context=live.context)
-            yield LiveResult(result, live.dropped, live.lag_us, (clock() - live.completed_s) * 1e3)
+            yield _result(live, pipeline.process(live.window, context=live.context), clock)
     finally:
         stop.set()
 
@@ -257,7 +256,11 @@ def _overlapped(pipeline, windows: "_LiveWindows", clock: Callable[[], float]) -
 
 def _finish(pipeline, live: _LiveWindow, future, clock: Callable[[], float]) -> LiveResult:
     pipeline.skip_windows(live.dropped)
-    result = pipeline.finish_prepared(live.window, future)
+    return _result(live, pipeline.finish_prepared(live.window, future), clock)
+
+
+def _result(live: _LiveWindow, result, clock: Callable[[], float]) -> LiveResult:
+    """The :class:`LiveResult` of a picked window segmented just now."""
     return LiveResult(result, live.dropped, live.lag_us, (clock() - live.completed_s) * 1e3)
 
 

@@ -17,9 +17,9 @@ from evseg.metrics import summarize
 from evseg.pipeline_eval import (
     SEGMENTATION_PRESET,
     SEGMENTATION_PRESET_ORDER,
-    summary_row,
     evaluate_recording,
     score_result,
+    summary_row,
 )
 
 
@@ -41,7 +41,6 @@ def evaluate_live(quick: bool = False, speed: float = 1.0, max_lag_us: int = 20_
     duration_us = 100_000 if quick else 300_000
     overlap = {"overlap": False} if worker == "none" else {"worker": worker}
     pooled: dict[tuple[str, str], list] = {}
-    segmented: dict[str, list[int]] = {}  # preset -> [windows segmented live, windows]
     for preset in presets:
         seg = load_segmentation_config(SEGMENTATION_PRESET[preset])
         cfg = PipelineConfig(segmentation=seg, **overlap)
@@ -59,9 +58,6 @@ def evaluate_live(quick: bool = False, speed: float = 1.0, max_lag_us: int = 20_
                 pooled.setdefault((preset, "live"), []).extend(score_result(rec, r.window) for r in live)
                 pooled.setdefault((preset, "same"), []).extend(offline[r.window.index] for r in live)
                 pooled.setdefault((preset, "all"), []).extend(offline)
-                counts = segmented.setdefault(preset, [0, 0])
-                counts[0] += len(live)
-                counts[1] += len(offline)
         finally:
             if pipe is not None:
                 pipe.close()
@@ -71,10 +67,11 @@ def evaluate_live(quick: bool = False, speed: float = 1.0, max_lag_us: int = 20_
     for name, members in groups:
         if not members:
             continue
-        done, total = (sum(segmented[p][i] for p in members) for i in (0, 1))
+        # windows segmented live / all windows
+        done, total = (sum(len(pooled[(p, kind)]) for p in members) for kind in ("live", "all"))
         for kind in ("live", "same", "all"):
-            row = summary_row(f"**{name}**, {names[kind]}", summarize([s for p in members for s in pooled[(p, kind)]]),
-                       float("nan"), float("nan"))
+            row = summary_row(f"**{name}**, {names[kind]}",
+                              summarize([s for p in members for s in pooled[(p, kind)]]), float("nan"), float("nan"))
             row = {k: v for k, v in row.items() if k not in ("flow median AE deg", "ms/window")}
             rows.append({**row, "windows segmented live %": 100 * done / total})
     return rows

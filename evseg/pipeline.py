@@ -372,10 +372,8 @@ class MotionSegmentationPipeline:
         scene = translating_edges(self.sensor_size, n_edges=40, duration_us=span, seed=0)
         for window in stream_time_windows([scene.events], cfg.window_us, cfg.stride_us):
             if self._flow_fn is None:
-                ev = window.events
-                flow = _FlowSlice(np.arange(len(ev)), scene.nx[window.first_event:window.first_event + len(ev)],
-                                  scene.ny[window.first_event:window.first_event + len(ev)], None)
-                self.process(window, flow)
+                own = slice(window.first_event, window.first_event + len(window.events))
+                self.process(window, _FlowSlice(np.arange(len(window.events)), scene.nx[own], scene.ny[own], None))
             elif self.overlaps:
                 # also starts (worker="process") and warms the worker that live runs use
                 self.finish_prepared(window, self.submit_prepare(window, None))
