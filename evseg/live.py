@@ -348,9 +348,10 @@ class _LiveWindows:
 def _check_packet(packet: np.ndarray, buf: np.ndarray) -> None:
     """A live packet must be events, sorted, and not older than the one before it: a window
     once segmented cannot take late events."""
-    if packet.dtype != EVENT_DTYPE:
+    if getattr(packet, "dtype", None) != EVENT_DTYPE:
+        got = f"dtype {packet.dtype}" if isinstance(packet, np.ndarray) else type(packet).__name__
         raise EventDataError(f"live source: a packet must be an event array of dtype {EVENT_DTYPE} "
-                             f"(evseg.events.make_events(x, y, t, p) makes one), got dtype {packet.dtype}")
+                             f"(evseg.events.make_events(x, y, t, p) makes one), got {got}")
     t = packet["t"]
     if len(t) > 1 and np.any(np.diff(t) < 0):
         at = int(np.flatnonzero(np.diff(t) < 0)[0])
