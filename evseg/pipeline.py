@@ -31,7 +31,6 @@ from __future__ import annotations
 import itertools
 import time
 from dataclasses import dataclass, field, replace
-from pathlib import Path
 from typing import Callable, Iterable, Iterator, Protocol
 
 import numpy as np
@@ -39,7 +38,9 @@ import numpy as np
 from evseg.calibration import Calibration
 from evseg.errors import ConfigError, EvsegError
 from evseg.events import EventStream
+from evseg.flow_file import FlowSlice, check_flow, load_flow_file, slice_flow  # noqa: F401 (load_flow_file: public here too)
 from evseg.tracking import ObjectTracker
+from evseg.undistortion import UndistortionTable, undistort_normal_flow
 from evseg.windows import EventHistory, Window, stream_time_windows
 
 
@@ -240,55 +241,6 @@ class WindowResult:
     timings_ms: dict[str, float] = field(default_factory=dict)
 
 
-@dataclass(frozen=True)
-class UndistortionTable:
-    """Undistorted position and Jacobian of the undistortion for every pixel of the sensor.
-
-    Built once per calibration so that per-window undistortion is a table lookup, not an
-    OpenCV call per event. All arrays are (height, width) float64; ``j11 = d xu / d x``,
-    ``j12 = d xu / d y``, ``j21 = d yu / d x``, ``j22 = d yu / d y`` (central differences).
-    """
-
-    xu: np.ndarray
-    yu: np.ndarray
-    j11: np.ndarray
-    j12: np.ndarray
-    j21: np.ndarray
-    j22: np.ndarray
-
-    @classmethod
-    def from_calibration(cls, calibration: Calibration) -> "UndistortionTable":
-        xu, yu = (m.astype(np.float64) for m in calibration.undistortion_map())
-        dxu_dy, dxu_dx = np.gradient(xu)
-        dyu_dy, dyu_dx = np.gradient(yu)
-        return cls(xu, yu, dxu_dx, dxu_dy, dyu_dx, dyu_dy)
-
-
-def undistort_normal_flow(
-    table: UndistortionTable, x: np.ndarray, y: np.ndarray, nx: np.ndarray, ny: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Map pixel positions (integer px) and their normal flows (px/s) to undistorted pixels.
-
-    With J the local Jacobian of the undistortion and g the unit normal direction, the
-    optical flow maps as u' = J u and the gradient direction as g' ~ J^-T g, so the normal
-    flow's magnitude along g' is (u . g) / |J^-T g| = |n| / |J^-T g|: computable from n alone.
-
-    Returns ``(xu, yu, nxu, nyu)``: float64 px and float32 px/s.
-    """
-    r = np.asarray(y, dtype=np.int64)
-    c = np.asarray(x, dtype=np.int64)
-    j11, j12, j21, j22 = table.j11[r, c], table.j12[r, c], table.j21[r, c], table.j22[r, c]
-    det = j11 * j22 - j12 * j21
-    mag = np.hypot(nx, ny)
-    gx, gy = nx / np.maximum(mag, 1e-12), ny / np.maximum(mag, 1e-12)
-    # J^-T g with J^-1 = [[j22, -j12], [-j21, j11]] / det
-    hx = (j22 * gx - j21 * gy) / det
-    hy = (-j12 * gx + j11 * gy) / det
-    hn = np.maximum(np.hypot(hx, hy), 1e-12)
-    scale = mag / hn
-    return table.xu[r, c], table.yu[r, c], (scale * hx / hn).astype(np.float32), (scale * hy / hn).astype(np.float32)
-
-
 class MotionSegmentationPipeline:
     """Segment an event stream window by window (see module docstring).
 
@@ -373,7 +325,7 @@ class MotionSegmentationPipeline:
         for window in stream_time_windows([scene.events], cfg.window_us, cfg.stride_us):
             if self._flow_fn is None:
                 own = slice(window.first_event, window.first_event + len(window.events))
-                self.process(window, _FlowSlice(np.arange(len(window.events)), scene.nx[own], scene.ny[own], None))
+                self.process(window, FlowSlice(np.arange(len(window.events)), scene.nx[own], scene.ny[own], None))
             elif self.overlaps:
                 # also starts (worker="process") and warms the worker that live runs use
                 self.finish_prepared(window, self.submit_prepare(window, None))
@@ -662,6 +614,8 @@ class MotionSegmentationPipeline:
         ``precomputed_flow``: the arrays of an ``evseg flow`` file (``index`` into the whole
         input, ``nx``, ``ny`` px/s, optional ``uncertainty``), sorted by ``index``.
         """
+        if precomputed_flow is not None:
+            precomputed_flow = check_flow(precomputed_flow, source="MotionSegmentationPipeline.run: precomputed_flow")
         chunks = [source.events] if isinstance(source, EventStream) else source
         cfg = self.config
         needs_context = precomputed_flow is None and cfg.flow != "precomputed"
@@ -673,7 +627,7 @@ class MotionSegmentationPipeline:
         for window in windows:
             flow = None
             if precomputed_flow is not None:
-                flow = _slice_flow(precomputed_flow, window.first_event, len(window.events))
+                flow = slice_flow(precomputed_flow, window.first_event, len(window.events))
             result = self.process(window, flow, context=history.before(window))
             history.add(window)
             yield result
@@ -845,47 +799,3 @@ def _merge_flows(targets: np.ndarray, inside: np.ndarray, rest, tracked):
     for part, where in ((rest, ~inside), (tracked, inside)):
         nx[where], ny[where], unc[where] = part.nx, part.ny, part.uncertainty
     return NormalFlow(targets, nx, ny, unc)
-
-
-@dataclass
-class _FlowSlice:
-    index: np.ndarray
-    nx: np.ndarray
-    ny: np.ndarray
-    uncertainty: np.ndarray | None
-
-
-def _slice_flow(flow: dict[str, np.ndarray], first: int, n: int) -> _FlowSlice:
-    """Rows of a precomputed flow file that fall into events [first, first + n)."""
-    index = flow["index"]
-    a, b = np.searchsorted(index, [first, first + n])
-    unc = flow.get("uncertainty")
-    return _FlowSlice(index[a:b] - first, flow["nx"][a:b], flow["ny"][a:b], None if unc is None else unc[a:b])
-
-
-def load_flow_file(path: str | Path, n_events: int | None = None) -> dict[str, np.ndarray]:
-    """Load per-event normal flow (``evseg flow`` schema) and check it; sorted by index."""
-    from evseg.errors import FormatError
-
-    path = Path(path)
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            data = {k: z[k] for k in z.files}
-    except (OSError, ValueError) as exc:
-        raise FormatError(f"{path}: cannot read flow file ({exc})") from None
-    for key in ("index", "nx", "ny"):
-        if key not in data:
-            raise FormatError(f"{path}: flow file has no key '{key}' (expected index, nx, ny[, uncertainty])")
-    n = len(data["index"])
-    for key in ("nx", "ny", "uncertainty"):
-        if key in data and len(data[key]) != n:
-            raise FormatError(f"{path}: key '{key}' has {len(data[key])} rows, 'index' has {n}")
-    index = data["index"].astype(np.int64)
-    if n and (index.min() < 0 or (n_events is not None and index.max() >= n_events)):
-        bad = int(index.min()) if index.min() < 0 else int(index.max())
-        raise FormatError(f"{path}: key 'index' has value {bad} outside the recording's {n_events} events")
-    order = np.argsort(index, kind="stable")
-    out = {"index": index[order], "nx": data["nx"][order].astype(np.float32), "ny": data["ny"][order].astype(np.float32)}
-    if "uncertainty" in data:
-        out["uncertainty"] = data["uncertainty"][order].astype(np.float32)
-    return out

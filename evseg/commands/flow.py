@@ -24,7 +24,6 @@ video (one frame per slice, hue = direction, brightness = speed up to ``--max-px
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -96,7 +95,7 @@ def run(args: argparse.Namespace) -> int:
     from evseg.calibration import load_calibration
     from evseg.errors import EvsegError
     from evseg.io import open_recording, parse_sensor_size
-    from evseg.io._atomic import atomic_path
+    from evseg.flow_file import save_flow_file
     from evseg.veckm_flow import NormalFlow, select_targets
     from evseg.veckm_flow.context import flow_with_context, history_span_us, split_history
     from evseg.windows import EventHistory, stream_time_windows
@@ -170,13 +169,8 @@ def run(args: argparse.Namespace) -> int:
          "cell_px": args.cell_px if args.targets == "cell" else None,
          "calibration": str(args.calib) if args.calib else ("file" if calibration is not None else None)}
     )
-    with atomic_path(args.out) as tmp:
-        with open(tmp, "wb") as f:
-            np.savez(
-                f, index=flow.index.astype(np.int64), nx=flow.nx.astype(np.float32), ny=flow.ny.astype(np.float32),
-                uncertainty=flow.uncertainty.astype(np.float32), sensor_size=np.asarray(sensor_size, np.int64),
-                window_us=np.int64(window_us), method=np.str_(info["method"]), config=np.str_(json.dumps(info)),
-            )
+    save_flow_file(args.out, flow.index, flow.nx, flow.ny, flow.uncertainty, sensor_size=sensor_size,
+                   window_us=window_us, method=info["method"], config=info)
     if args.video is not None:
         cell = args.cell_px if args.targets == "cell" else 1
         _write_video(args.video, frames, sensor_size, window_us, args.max_px_s, cell)

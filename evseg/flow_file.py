@@ -1,0 +1,161 @@
+"""Per-event normal flow files: the layout ``evseg flow`` writes and ``evseg segment --flow``
+reads, for users who bring the flow of their own estimator.
+
+One row per target event (not every event needs a flow)::
+
+    index        int64 (T,)   position of the event in the input recording (0-based, file order)
+    nx, ny       float32 (T,) normal flow, px/s of the sensor's pixel grid (x = column, y = row
+                              down); NaN where the estimator gave none
+    uncertainty  float32 (T,) optional; larger = less certain (evseg's estimators: angular
+                              error in radians)
+
+plus optional metadata (``sensor_size``, ``window_us``, ``method``, ``config``) that the
+segmentation does not need.
+
+Example (a flow for events 0, 5 and 9 of a recording, then segmentation with it):
+
+>>> import tempfile, pathlib
+>>> path = pathlib.Path(tempfile.mkdtemp()) / "flow.npz"
+>>> save_flow_file(path, index=[9, 0, 5], nx=[120.0, -3.5, 0.0], ny=[0.0, 40.0, 80.0])
+>>> flow = load_flow_file(path)
+>>> flow["index"].tolist(), flow["nx"].tolist()
+([0, 5, 9], [-3.5, 0.0, 120.0])
+
+``evseg segment recording.h5 --flow flow.npz --out result.npz`` then segments that flow, and
+``MotionSegmentationPipeline.run(stream, precomputed_flow=load_flow_file(path))`` does so from
+Python.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from evseg.errors import EvsegError, FormatError
+
+FLOW_KEYS = ("index", "nx", "ny")
+"""Keys every flow file and every ``precomputed_flow`` mapping must have."""
+OPTIONAL_FLOW_KEYS = ("uncertainty",)
+
+
+def check_flow(data: Mapping, n_events: int | None = None, source: str = "precomputed flow",
+               error: type[EvsegError] = EvsegError) -> dict[str, np.ndarray]:
+    """The flow arrays of ``data`` checked and sorted by ``index`` (a new dict; ``data`` is not
+    modified): ``index`` int64, ``nx``, ``ny`` (and ``uncertainty`` when given) float32.
+
+    Raises ``error`` naming ``source``, the key and the value when a key is missing, an array
+    is not 1-D numbers, the lengths differ or an index is negative or (with ``n_events``) past
+    the recording's last event. Other keys are ignored.
+    """
+    for key in FLOW_KEYS:
+        if key not in data:
+            raise error(f"{source}: no key '{key}' (expected index, nx, ny[, uncertainty])")
+    arrays = {}
+    for key in FLOW_KEYS + OPTIONAL_FLOW_KEYS:
+        if key not in data or data[key] is None:
+            continue
+        a = np.asarray(data[key])
+        if a.ndim != 1:
+            raise error(f"{source}: key '{key}' must be 1-D (one row per target event), got shape {a.shape}")
+        if not np.issubdtype(a.dtype, np.number) or np.issubdtype(a.dtype, np.complexfloating):
+            raise error(f"{source}: key '{key}' must hold real numbers, got dtype {a.dtype}")
+        arrays[key] = a
+    n = len(arrays["index"])
+    for key, a in arrays.items():
+        if len(a) != n:
+            raise error(f"{source}: key '{key}' has {len(a)} rows, 'index' has {n}")
+    index = arrays["index"]
+    if not np.issubdtype(index.dtype, np.integer):
+        if n and not np.all(np.isfinite(index) & (index == np.round(index))):
+            bad = index[~(np.isfinite(index) & (index == np.round(index)))][0]
+            raise error(f"{source}: key 'index' must hold event positions (integers), got {bad}")
+    index = index.astype(np.int64)
+    if n and (index.min() < 0 or (n_events is not None and index.max() >= n_events)):
+        bad = int(index.min()) if index.min() < 0 else int(index.max())
+        within = f"the recording's {n_events} events" if n_events is not None else "the recording"
+        raise error(f"{source}: key 'index' has value {bad} outside {within}")
+    order = np.argsort(index, kind="stable")
+    out = {"index": index[order]}
+    for key in ("nx", "ny") + OPTIONAL_FLOW_KEYS:
+        if key in arrays:
+            out[key] = arrays[key][order].astype(np.float32)
+    return out
+
+
+def load_flow_file(path: str | Path, n_events: int | None = None) -> dict[str, np.ndarray]:
+    """Read a flow file (``.npz``, the layout of this module), checked (:func:`check_flow`,
+    errors are :class:`~evseg.errors.FormatError` naming the file) and sorted by ``index``.
+    ``n_events``: the recording's event count, to check the indices against."""
+    path = Path(path)
+    try:
+        loaded = np.load(path, allow_pickle=False)
+    except (OSError, ValueError, EOFError) as exc:
+        raise FormatError(f"{path}: cannot read flow file ({exc})") from None
+    if not isinstance(loaded, np.lib.npyio.NpzFile):  # a .npy file: one bare array
+        raise FormatError(f"{path}: a flow file is an .npz archive with keys index, nx, ny[, uncertainty]")
+    with loaded as z:
+        data = {k: z[k] for k in z.files}
+    return check_flow(data, n_events, source=str(path), error=FormatError)
+
+
+def save_flow_file(
+    path: str | Path,
+    index,
+    nx,
+    ny,
+    uncertainty=None,
+    *,
+    sensor_size: tuple[int, int] | None = None,
+    window_us: int | None = None,
+    method: str = "external",
+    config: dict | None = None,
+) -> None:
+    """Write normal flow for target events to ``path`` (.npz, atomically: an error leaves an
+    existing file as it was).
+
+    Args:
+        index: (T,) positions of the target events in the recording (any order; rows are
+            written sorted by it).
+        nx, ny: (T,) normal flow, px/s (x = column, y = row down).
+        uncertainty: optional (T,), larger = less certain.
+        sensor_size: (width, height) px, stored for reference. window_us: slice length, us.
+        method: the estimator's name. config: JSON-serialisable settings, stored as text.
+
+    Raises :class:`~evseg.errors.EvsegError` naming the key for arrays that do not fit the
+    layout (see :func:`check_flow`).
+    """
+    from evseg.io._atomic import atomic_path
+
+    flow = check_flow({"index": index, "nx": nx, "ny": ny, "uncertainty": uncertainty},
+                      source=f"save_flow_file({path})")
+    extra = {"method": np.str_(method), "config": np.str_(json.dumps(config or {}))}
+    if sensor_size is not None:
+        extra["sensor_size"] = np.asarray(sensor_size, dtype=np.int64)
+    if window_us is not None:
+        extra["window_us"] = np.int64(window_us)
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as f:
+            np.savez(f, **flow, **extra)
+
+
+@dataclass
+class FlowSlice:
+    """The rows of a flow that fall into one window: ``index`` into the window's events."""
+
+    index: np.ndarray
+    nx: np.ndarray
+    ny: np.ndarray
+    uncertainty: np.ndarray | None
+
+
+def slice_flow(flow: Mapping[str, np.ndarray], first: int, n: int) -> FlowSlice:
+    """Rows of a checked flow (:func:`check_flow`, sorted by index) that fall into events
+    [first, first + n), re-indexed from ``first``."""
+    index = flow["index"]
+    a, b = np.searchsorted(index, [first, first + n])
+    unc = flow.get("uncertainty")
+    return FlowSlice(index[a:b] - first, flow["nx"][a:b], flow["ny"][a:b], None if unc is None else unc[a:b])

@@ -1,0 +1,59 @@
+"""Normal flow in undistorted pixel coordinates: positions and flows of the sensor grid mapped
+through a camera calibration, by table lookup (the pipeline's step 2 with a calibration)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from evseg.calibration import Calibration
+
+
+@dataclass(frozen=True)
+class UndistortionTable:
+    """Undistorted position and Jacobian of the undistortion for every pixel of the sensor.
+
+    Built once per calibration so that per-window undistortion is a table lookup, not an
+    OpenCV call per event. All arrays are (height, width) float64; ``j11 = d xu / d x``,
+    ``j12 = d xu / d y``, ``j21 = d yu / d x``, ``j22 = d yu / d y`` (central differences).
+    """
+
+    xu: np.ndarray
+    yu: np.ndarray
+    j11: np.ndarray
+    j12: np.ndarray
+    j21: np.ndarray
+    j22: np.ndarray
+
+    @classmethod
+    def from_calibration(cls, calibration: Calibration) -> "UndistortionTable":
+        xu, yu = (m.astype(np.float64) for m in calibration.undistortion_map())
+        dxu_dy, dxu_dx = np.gradient(xu)
+        dyu_dy, dyu_dx = np.gradient(yu)
+        return cls(xu, yu, dxu_dx, dxu_dy, dyu_dx, dyu_dy)
+
+
+def undistort_normal_flow(
+    table: UndistortionTable, x: np.ndarray, y: np.ndarray, nx: np.ndarray, ny: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Map pixel positions (integer px) and their normal flows (px/s) to undistorted pixels.
+
+    With J the local Jacobian of the undistortion and g the unit normal direction, the
+    optical flow maps as u' = J u and the gradient direction as g' ~ J^-T g, so the normal
+    flow's magnitude along g' is (u . g) / |J^-T g| = |n| / |J^-T g|: computable from n alone.
+
+    Returns ``(xu, yu, nxu, nyu)``: float64 px and float32 px/s.
+    """
+    r = np.asarray(y, dtype=np.int64)
+    c = np.asarray(x, dtype=np.int64)
+    j11, j12, j21, j22 = table.j11[r, c], table.j12[r, c], table.j21[r, c], table.j22[r, c]
+    det = j11 * j22 - j12 * j21
+    mag = np.hypot(nx, ny)
+    gx, gy = nx / np.maximum(mag, 1e-12), ny / np.maximum(mag, 1e-12)
+    # J^-T g with J^-1 = [[j22, -j12], [-j21, j11]] / det
+    hx = (j22 * gx - j21 * gy) / det
+    hy = (-j12 * gx + j11 * gy) / det
+    hn = np.maximum(np.hypot(hx, hy), 1e-12)
+    scale = mag / hn
+    return table.xu[r, c], table.yu[r, c], (scale * hx / hn).astype(np.float32), (scale * hy / hn).astype(np.float32)

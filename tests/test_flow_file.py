@@ -1,0 +1,122 @@
+"""Per-event normal flow files (evseg.flow_file): the layout users write for `evseg segment --flow`."""
+
+import numpy as np
+import pytest
+
+from evseg.cli import main
+from evseg.errors import EvsegError, FormatError
+from evseg.flow_file import check_flow, load_flow_file, save_flow_file, slice_flow
+
+
+def test_round_trip_sorts_rows_by_index_and_keeps_metadata(tmp_path):
+    path = tmp_path / "flow.npz"
+    save_flow_file(path, index=[9, 0, 5], nx=[120.0, -3.5, 0.0], ny=[0.0, 40.0, 80.0], uncertainty=[0.1, 0.2, 0.3],
+                   sensor_size=(346, 260), window_us=10_000, method="mine", config={"k": 1})
+    flow = load_flow_file(path, n_events=10)
+    assert flow["index"].dtype == np.int64 and flow["nx"].dtype == np.float32
+    np.testing.assert_array_equal(flow["index"], [0, 5, 9])
+    np.testing.assert_array_equal(flow["nx"], np.float32([-3.5, 0.0, 120.0]))
+    np.testing.assert_array_equal(flow["ny"], np.float32([40.0, 80.0, 0.0]))
+    np.testing.assert_array_equal(flow["uncertainty"], np.float32([0.2, 0.3, 0.1]))
+    with np.load(path) as z:
+        assert z["sensor_size"].tolist() == [346, 260] and int(z["window_us"]) == 10_000
+        assert str(z["method"]) == "mine" and str(z["config"]) == '{"k": 1}'
+
+
+def test_uncertainty_is_optional(tmp_path):
+    save_flow_file(tmp_path / "f.npz", [1, 2], [1.0, 2.0], [0.0, 0.0])
+    assert set(load_flow_file(tmp_path / "f.npz")) == {"index", "nx", "ny"}
+
+
+def test_a_failed_save_leaves_the_existing_file(tmp_path):
+    path = tmp_path / "flow.npz"
+    save_flow_file(path, [0, 1], [1.0, 2.0], [3.0, 4.0])
+    before = path.read_bytes()
+    with pytest.raises(EvsegError, match=r"key 'ny' has 1 rows, 'index' has 2"):
+        save_flow_file(path, [0, 1], [1.0, 2.0], [3.0])
+    assert path.read_bytes() == before
+    assert [p.name for p in tmp_path.iterdir()] == ["flow.npz"]  # no temporary file left
+
+
+@pytest.mark.parametrize("data, message", [
+    ({"index": [0], "nx": [1.0]}, r"no key 'ny'"),
+    ({"index": [0, 1], "nx": [1.0, 2.0], "ny": [[1.0, 2.0]]}, r"key 'ny' must be 1-D .* shape \(1, 2\)"),
+    ({"index": [0], "nx": ["a"], "ny": [1.0]}, r"key 'nx' must hold real numbers, got dtype <U1"),
+    ({"index": [0.5], "nx": [1.0], "ny": [1.0]}, r"key 'index' must hold event positions \(integers\), got 0.5"),
+    ({"index": [-1], "nx": [1.0], "ny": [1.0]}, r"key 'index' has value -1 outside"),
+    ({"index": [0, 7], "nx": [1.0, 1.0], "ny": [1.0, 1.0], "uncertainty": [0.1]}, r"key 'uncertainty' has 1 rows"),
+])
+def test_bad_flow_arrays_are_refused_naming_the_key(data, message):
+    with pytest.raises(EvsegError, match=message):
+        check_flow(data, source="test")
+
+
+def test_load_names_the_file_and_checks_the_recording_length(tmp_path):
+    path = tmp_path / "flow.npz"
+    np.savez(path, index=np.array([0, 12]), nx=np.ones(2), ny=np.ones(2))
+    with pytest.raises(FormatError, match=rf"{path}: key 'index' has value 12 outside the recording's 10 events"):
+        load_flow_file(path, n_events=10)
+    np.savez(path, index=np.array([0]), nx=np.ones(1))
+    with pytest.raises(FormatError, match=rf"{path}: no key 'ny'"):
+        load_flow_file(path)
+    npy = tmp_path / "flow.npy"
+    np.save(npy, np.zeros((3, 3)))
+    with pytest.raises(FormatError, match=r"an .npz archive with keys index, nx, ny"):
+        load_flow_file(npy)
+    (tmp_path / "junk.npz").write_bytes(b"not a zip")
+    with pytest.raises(FormatError, match=r"cannot read flow file"):
+        load_flow_file(tmp_path / "junk.npz")
+
+
+def test_slice_flow_reindexes_one_window():
+    flow = check_flow({"index": [0, 3, 4, 8], "nx": [1.0, 2.0, 3.0, 4.0], "ny": [0.0, 0.0, 0.0, 0.0]})
+    part = slice_flow(flow, first=3, n=5)  # events 3..7
+    np.testing.assert_array_equal(part.index, [0, 1])
+    np.testing.assert_array_equal(part.nx, np.float32([2.0, 3.0]))
+    assert part.uncertainty is None
+
+
+@pytest.fixture(scope="module")
+def sim():
+    from evseg.simulator import load_scene_preset, simulate
+
+    rec = simulate(load_scene_preset("evimo_like"), seed=1001, duration_us=20_000)
+    ok = np.flatnonzero(np.isfinite(rec.normal_flow[:, 0]))
+    return rec, {"index": ok, "nx": rec.normal_flow[ok, 0], "ny": rec.normal_flow[ok, 1]}
+
+
+def test_pipeline_takes_flow_rows_in_any_order(sim):
+    from evseg.pipeline import MotionSegmentationPipeline, PipelineConfig
+
+    rec, flow = sim
+    perm = np.random.default_rng(0).permutation(len(flow["index"]))
+    shuffled = {k: v[perm] for k, v in flow.items()}
+    runs = []
+    for f in (flow, shuffled):
+        pipe = MotionSegmentationPipeline(PipelineConfig(flow="precomputed"), sensor_size=rec.stream.sensor_size)
+        runs.append([r.labels for r in pipe.run(rec.stream, precomputed_flow=f)])
+    assert len(runs[0]) == 2
+    for a, b in zip(*runs):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_pipeline_refuses_flow_without_a_key(sim):
+    from evseg.pipeline import MotionSegmentationPipeline, PipelineConfig
+
+    rec, flow = sim
+    pipe = MotionSegmentationPipeline(PipelineConfig(flow="precomputed"), sensor_size=rec.stream.sensor_size)
+    with pytest.raises(EvsegError, match=r"run: precomputed_flow: no key 'ny'"):
+        next(pipe.run(rec.stream, precomputed_flow={"index": flow["index"], "nx": flow["nx"]}))
+
+
+def test_segment_cli_reports_a_bad_flow_file_in_one_line(sim, tmp_path, capsys):
+    from evseg.simulator import save_recording
+
+    rec, flow = sim
+    save_recording(rec, tmp_path / "sim.npz")
+    np.savez(tmp_path / "flow.npz", index=flow["index"], nx=flow["nx"], vy=flow["ny"])  # a misnamed key
+    assert main(["segment", str(tmp_path / "sim.npz"), "--flow", str(tmp_path / "flow.npz"),
+                 "--out", str(tmp_path / "out.npz"), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "flow.npz: no key 'ny' (expected index, nx, ny[, uncertainty])" in err[0], err
+    assert not (tmp_path / "out.npz").exists()
