@@ -66,6 +66,8 @@ class NormalFlowModule(pl.LightningModule):
             direction: where a neighbourhood shows texture the head may give the optical flow
             itself, where it shows one edge the normal flow); the segmentation's constraint
             p . u = |p|^2 holds for all of them. The normal-flow metrics are still logged.
+        magnitude_weight: weight of the log-magnitude term of the normal-flow loss against its
+            direction term (1: the shipped model).
     """
 
     def __init__(
@@ -80,6 +82,7 @@ class NormalFlowModule(pl.LightningModule):
         uncertainty_target: str = "angle",
         object_weight: float = 1.0,
         flow_target: str = "normal",
+        magnitude_weight: float = 1.0,
     ):
         super().__init__()
         encoding = EncodingConfig.from_dict(dict(encoding or {})).to_dict()
@@ -91,9 +94,12 @@ class NormalFlowModule(pl.LightningModule):
                                    "magnitude_balance": float(magnitude_balance),
                                    "uncertainty_target": uncertainty_target,
                                    "object_weight": float(object_weight),
-                                   "flow_target": flow_target})
+                                   "flow_target": flow_target,
+                                   "magnitude_weight": float(magnitude_weight)})
         if not object_weight > 0:
             raise ConfigError(f"model.object_weight must be > 0, got {object_weight}")
+        if not magnitude_weight > 0:
+            raise ConfigError(f"model.magnitude_weight must be > 0, got {magnitude_weight}")
         if flow_target not in FLOW_TARGETS:
             raise ConfigError(f"model.flow_target must be one of {', '.join(FLOW_TARGETS)}, got {flow_target!r}")
         if uncertainty_target not in UNCERTAINTY_TARGETS:
@@ -129,7 +135,8 @@ class NormalFlowModule(pl.LightningModule):
         err = torch.zeros_like(log_u)
         ae = L.angular_error(pred, torch.nan_to_num(nf))
         if has_nf.any():
-            per_target = L.normal_flow_loss(pred[has_nf], nf[has_nf])
+            per_target = L.normal_flow_loss(pred[has_nf], nf[has_nf],
+                                            magnitude_weight=float(self.hparams.get("magnitude_weight", 1.0)))
             balance = float(self.hparams.get("magnitude_balance", 0.0))
             if balance > 0:
                 per_target = per_target * L.magnitude_weights(nf[has_nf], balance)

@@ -23,11 +23,13 @@ def angular_error(pred: torch.Tensor, gt: torch.Tensor) -> torch.Tensor:
     return torch.atan2(cross.abs(), dot)
 
 
-def normal_flow_loss(pred: torch.Tensor, gt: torch.Tensor, eps: float = EPS) -> torch.Tensor:
-    """Per-target loss (T,) against ground-truth normal flow: direction + log magnitude."""
+def normal_flow_loss(pred: torch.Tensor, gt: torch.Tensor, eps: float = EPS,
+                     magnitude_weight: float = 1.0) -> torch.Tensor:
+    """Per-target loss (T,) against ground-truth normal flow: direction + ``magnitude_weight``
+    x log magnitude."""
     cos = torch.nn.functional.cosine_similarity(pred, gt, dim=1, eps=1e-8)
     logmag = torch.log(eps + pred.norm(dim=1)) - torch.log(eps + gt.norm(dim=1))
-    return (1.0 - cos) + logmag.square()
+    return (1.0 - cos) + magnitude_weight * logmag.square()
 
 
 def veckm_optical_flow_loss(pred: torch.Tensor, u: torch.Tensor, eps: float = 0.1) -> torch.Tensor:

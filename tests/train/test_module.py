@@ -161,3 +161,28 @@ def test_flow_target_optical_trains_every_row_with_optical_flow_by_veckm_flow_s_
     assert parts["nf"] > 0 and parts["of"] == 0
     with pytest.raises(ConfigError, match="flow_target must be one of normal, optical"):
         NormalFlowModule(flow_target="full")
+
+
+def test_magnitude_weight_scales_only_the_log_magnitude_term():
+    """magnitude_weight w: per target (1 - cos) + w (log(eps + |p|) - log(eps + |n|))^2; 1
+    (default) is the plain loss."""
+    import pytest
+
+    from evseg.veckm_flow import losses as L
+
+    pred = torch.tensor([[1.0, 0.0], [0.0, 2.0]])
+    gt = torch.tensor([[2.0, 0.0], [0.0, 2.0]])  # same directions: only the magnitude differs
+    logmag = math.log(L.EPS + 1.0) - math.log(L.EPS + 2.0)
+    torch.testing.assert_close(L.normal_flow_loss(pred, gt, magnitude_weight=3.0),
+                               torch.tensor([3.0 * logmag**2, 0.0]))
+    turned = torch.tensor([[0.0, 2.0]])  # a right angle, equal magnitudes: only the direction term
+    torch.testing.assert_close(L.normal_flow_loss(turned, gt[:1], magnitude_weight=3.0), torch.tensor([1.0]))
+    batch = _batch(16)
+    torch.manual_seed(0)
+    m = NormalFlowModule(head={"hidden": 16, "layers": 1}, magnitude_weight=2.5)
+    p = m(batch["features"])[:, :2]
+    expected = L.normal_flow_loss(p, batch["normal_flow"] / m.flow_unit_px_s, magnitude_weight=2.5).mean()
+    torch.testing.assert_close(m._losses(batch)["nf"], expected)
+    assert m.hparams.magnitude_weight == 2.5
+    with pytest.raises(ValueError, match="magnitude_weight must be > 0"):
+        NormalFlowModule(magnitude_weight=0.0)
