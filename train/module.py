@@ -68,6 +68,8 @@ class NormalFlowModule(pl.LightningModule):
             p . u = |p|^2 holds for all of them. The normal-flow metrics are still logged.
         magnitude_weight: weight of the log-magnitude term of the normal-flow loss against its
             direction term (1: the shipped model).
+        object_weight_uncertainty: the uncertainty NLL weighs object targets by
+            ``object_weight`` too (False: the shipped model; every target alike).
     """
 
     def __init__(
@@ -83,6 +85,7 @@ class NormalFlowModule(pl.LightningModule):
         object_weight: float = 1.0,
         flow_target: str = "normal",
         magnitude_weight: float = 1.0,
+        object_weight_uncertainty: bool = False,
     ):
         super().__init__()
         encoding = EncodingConfig.from_dict(dict(encoding or {})).to_dict()
@@ -95,7 +98,8 @@ class NormalFlowModule(pl.LightningModule):
                                    "uncertainty_target": uncertainty_target,
                                    "object_weight": float(object_weight),
                                    "flow_target": flow_target,
-                                   "magnitude_weight": float(magnitude_weight)})
+                                   "magnitude_weight": float(magnitude_weight),
+                                   "object_weight_uncertainty": bool(object_weight_uncertainty)})
         if not object_weight > 0:
             raise ConfigError(f"model.object_weight must be > 0, got {object_weight}")
         if not magnitude_weight > 0:
@@ -155,7 +159,11 @@ class NormalFlowModule(pl.LightningModule):
         if known.any():
             # uncertainty_nll detaches the error: the uncertainty learns it, the flow is not
             # pulled by it.
-            parts["nll"] = L.uncertainty_nll(log_u[known], err[known]).mean()
+            nll = L.uncertainty_nll(log_u[known], err[known])
+            if self.hparams.get("object_weight_uncertainty", False):
+                parts["nll"] = self._object_weighted_mean(nll, batch, known)
+            else:
+                parts["nll"] = nll.mean()
         n_nf, n_of = has_nf.sum(), has_of.sum()
         flow_loss = (n_nf * parts["nf"] + self.hparams.optical_flow_weight * n_of * parts["of"]) / known.sum().clamp(min=1)
         parts["loss"] = flow_loss + self.hparams.uncertainty_weight * parts["nll"]

@@ -186,3 +186,20 @@ def test_magnitude_weight_scales_only_the_log_magnitude_term():
     assert m.hparams.magnitude_weight == 2.5
     with pytest.raises(ValueError, match="magnitude_weight must be > 0"):
         NormalFlowModule(magnitude_weight=0.0)
+
+
+def test_object_weight_uncertainty_weighs_the_uncertainty_nll_alike():
+    """object_weight_uncertainty: the uncertainty NLL is the object-weighted mean too (default:
+    the plain mean over every target)."""
+    from evseg.veckm_flow import losses as L
+
+    batch = _batch(16)
+    batch["is_object"] = (torch.arange(16) < 4).float()
+    for weighted in (False, True):
+        torch.manual_seed(0)
+        m = NormalFlowModule(head={"hidden": 16, "layers": 1}, object_weight=3.0, object_weight_uncertainty=weighted)
+        out = m(batch["features"])
+        nf = batch["normal_flow"] / m.flow_unit_px_s
+        nll = L.uncertainty_nll(out[:, 2], L.angular_error(out[:, :2], nf))
+        expected = (3.0 * nll[:4].sum() + nll[4:].sum()) / (3.0 * 4 + 12) if weighted else nll.mean()
+        torch.testing.assert_close(m._losses(batch)["nll"], expected)
