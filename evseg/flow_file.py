@@ -45,7 +45,8 @@ OPTIONAL_FLOW_KEYS = ("uncertainty",)
 def check_flow(data: Mapping, n_events: int | None = None, source: str = "precomputed flow",
                error: type[EvsegError] = EvsegError) -> dict[str, np.ndarray]:
     """The flow arrays of ``data`` checked and sorted by ``index`` (a new dict; ``data`` is not
-    modified): ``index`` int64, ``nx``, ``ny`` (and ``uncertainty`` when given) float32.
+    modified, and its arrays are shared, not copied, where they are already in order and of
+    these dtypes): ``index`` int64, ``nx``, ``ny`` (and ``uncertainty`` when given) float32.
 
     Raises ``error`` naming ``source``, the key and the value when a key is missing, an array
     is not 1-D numbers, the lengths differ or an index is negative or (with ``n_events``) past
@@ -70,19 +71,22 @@ def check_flow(data: Mapping, n_events: int | None = None, source: str = "precom
             raise error(f"{source}: key '{key}' has {len(a)} rows, 'index' has {n}")
     index = arrays["index"]
     if not np.issubdtype(index.dtype, np.integer):
-        if n and not np.all(np.isfinite(index) & (index == np.round(index))):
-            bad = index[~(np.isfinite(index) & (index == np.round(index)))][0]
-            raise error(f"{source}: key 'index' must hold event positions (integers), got {bad}")
-    index = index.astype(np.int64)
+        whole = np.isfinite(index) & (index == np.round(index))
+        if not whole.all():
+            raise error(f"{source}: key 'index' must hold event positions (integers), got {index[~whole][0]}")
+    index = index.astype(np.int64, copy=False)
     if n and (index.min() < 0 or (n_events is not None and index.max() >= n_events)):
         bad = int(index.min()) if index.min() < 0 else int(index.max())
         within = f"the recording's {n_events} events" if n_events is not None else "the recording"
         raise error(f"{source}: key 'index' has value {bad} outside {within}")
-    order = np.argsort(index, kind="stable")
+    # Flow that is already in order (a file load_flow_file has read, handed on to
+    # MotionSegmentationPipeline.run) is passed through without a sort or a copy.
+    in_order = n < 2 or bool(np.all(index[1:] >= index[:-1]))
+    order = slice(None) if in_order else np.argsort(index, kind="stable")
     out = {"index": index[order]}
     for key in ("nx", "ny") + OPTIONAL_FLOW_KEYS:
         if key in arrays:
-            out[key] = arrays[key][order].astype(np.float32)
+            out[key] = arrays[key][order].astype(np.float32, copy=False)
     return out
 
 
@@ -128,7 +132,7 @@ def save_flow_file(
     Raises :class:`~evseg.errors.EvsegError` naming the key for arrays that do not fit the
     layout (see :func:`check_flow`).
     """
-    from evseg.io._atomic import atomic_path
+    from evseg.io._atomic import atomic_savez
 
     flow = check_flow({"index": index, "nx": nx, "ny": ny, "uncertainty": uncertainty},
                       source=f"save_flow_file({path})")
@@ -137,13 +141,11 @@ def save_flow_file(
         extra["sensor_size"] = np.asarray(sensor_size, dtype=np.int64)
     if window_us is not None:
         extra["window_us"] = np.int64(window_us)
-    with atomic_path(path) as tmp:
-        with open(tmp, "wb") as f:
-            np.savez(f, **flow, **extra)
+    atomic_savez(path, **flow, **extra)
 
 
 @dataclass
-class FlowSlice:
+class WindowFlow:
     """The rows of a flow that fall into one window: ``index`` into the window's events."""
 
     index: np.ndarray
@@ -152,10 +154,10 @@ class FlowSlice:
     uncertainty: np.ndarray | None
 
 
-def slice_flow(flow: Mapping[str, np.ndarray], first: int, n: int) -> FlowSlice:
+def slice_flow(flow: Mapping[str, np.ndarray], first: int, n: int) -> WindowFlow:
     """Rows of a checked flow (:func:`check_flow`, sorted by index) that fall into events
     [first, first + n), re-indexed from ``first``."""
     index = flow["index"]
     a, b = np.searchsorted(index, [first, first + n])
     unc = flow.get("uncertainty")
-    return FlowSlice(index[a:b] - first, flow["nx"][a:b], flow["ny"][a:b], None if unc is None else unc[a:b])
+    return WindowFlow(index[a:b] - first, flow["nx"][a:b], flow["ny"][a:b], None if unc is None else unc[a:b])

@@ -38,7 +38,7 @@ import numpy as np
 from evseg.calibration import Calibration
 from evseg.errors import ConfigError, EvsegError
 from evseg.events import EventStream
-from evseg.flow_file import FlowSlice, check_flow, load_flow_file, slice_flow  # noqa: F401 (load_flow_file: public here too)
+from evseg.flow_file import WindowFlow, check_flow, load_flow_file, slice_flow  # noqa: F401 (load_flow_file: public here too)
 from evseg.tracking import ObjectTracker
 from evseg.undistortion import UndistortionTable, undistort_normal_flow
 from evseg.windows import EventHistory, Window, stream_time_windows
@@ -325,7 +325,7 @@ class MotionSegmentationPipeline:
         for window in stream_time_windows([scene.events], cfg.window_us, cfg.stride_us):
             if self._flow_fn is None:
                 own = slice(window.first_event, window.first_event + len(window.events))
-                self.process(window, FlowSlice(np.arange(len(window.events)), scene.nx[own], scene.ny[own], None))
+                self.process(window, WindowFlow(np.arange(len(window.events)), scene.nx[own], scene.ny[own], None))
             elif self.overlaps:
                 # also starts (worker="process") and warms the worker that live runs use
                 self.finish_prepared(window, self.submit_prepare(window, None))

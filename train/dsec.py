@@ -107,7 +107,7 @@ def convert_dsec(events_dir: str | Path, flow_dir: str | Path, out: str | Path, 
     """
     from evseg.events import EVENT_DTYPE
     from evseg.io import open_recording
-    from evseg.io._atomic import atomic_path
+    from evseg.io._atomic import atomic_savez
 
     events_dir, flow_dir = Path(events_dir), Path(flow_dir)
     ts = read_flow_timestamps(flow_dir / "forward_timestamps.txt")
@@ -143,21 +143,21 @@ def convert_dsec(events_dir: str | Path, flow_dir: str | Path, out: str | Path, 
                 break
     events = np.concatenate(kept) if kept else np.empty(0, dtype=EVENT_DTYPE)
 
-    maps, starts = [], []
-    nan_map = np.full((h, w, 2), np.nan, dtype=np.float32)
+    # One array for all maps (filled in place: a list of maps and a stacked copy would need
+    # twice the memory); a gap between two intervals gets an all-NaN map of its own.
+    gap = np.r_[False, ts[1:, 0] > ts[:-1, 1]]
+    flow_maps = np.full((len(ts) + int(gap.sum()), h, w, 2), np.nan, dtype=np.float32)
+    starts = []
     for k, (png, (t_from, t_to)) in enumerate(zip(pngs, ts)):
+        if gap[k]:  # no ground truth from the end of the interval before
+            starts.append(int(ts[k - 1, 1]) - t0)
         flow, valid = read_flow_png(png)
         if flow.shape[:2] != (h, w):
             raise FormatError(f"{png}: flow map is {flow.shape[1]}x{flow.shape[0]}, expected {w}x{h}")
-        if k and t_from > ts[k - 1, 1]:  # a gap between intervals: no ground truth there
-            maps.append(nan_map)
-            starts.append(int(ts[k - 1, 1]) - t0)
-        maps.append(np.where(valid[..., None], flow / np.float32((t_to - t_from) * 1e-6), np.float32(np.nan)))
+        flow_maps[len(starts)][valid] = flow[valid] / np.float32((t_to - t_from) * 1e-6)
         starts.append(int(t_from) - t0)
-    with atomic_path(out) as tmp:
-        with open(tmp, "wb") as f:
-            np.savez(f, events=events, sensor_size=np.asarray(DSEC_SENSOR_SIZE, np.int64),
-                     flow_maps=np.stack(maps).astype(np.float32), flow_t_us=np.asarray(starts, np.int64))
+    atomic_savez(out, events=events, sensor_size=np.asarray(DSEC_SENSOR_SIZE, np.int64), flow_maps=flow_maps,
+                 flow_t_us=np.asarray(starts, np.int64))
     return Path(out)
 
 

@@ -64,7 +64,7 @@ def convert_evimo2(folder: str | Path, out: str | Path, max_maps: int | None = N
     ``out`` (.npz, atomically). ``max_maps``: use only the first this many flow maps. Returns
     ``out``."""
     from evseg.events import make_events, validate_events
-    from evseg.io._atomic import atomic_path
+    from evseg.io._atomic import atomic_savez
 
     folder = Path(folder)
     xy = _load(folder, "dataset_events_xy.npy")
@@ -119,9 +119,7 @@ def convert_evimo2(folder: str | Path, out: str | Path, max_maps: int | None = N
             flow[sel] = m[y[sel], x[sel]] / np.float32(t1[j] - t0[j])
     events = make_events(x, y, t_us[idx], np.asarray(p)[idx])
     validate_events(events, (w, h), source=str(folder))
-    with atomic_path(out) as tmp:
-        with open(tmp, "wb") as f:
-            np.savez(f, events=events, sensor_size=np.asarray((w, h), np.int64), flow=flow)
+    atomic_savez(out, events=events, sensor_size=np.asarray((w, h), np.int64), flow=flow)
     return Path(out)
 
 

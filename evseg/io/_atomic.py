@@ -27,3 +27,13 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     finally:
         if tmp_path.exists():
             tmp_path.unlink()
+
+
+def atomic_savez(path: str | Path, **arrays) -> None:
+    """``np.savez`` to ``path`` through :func:`atomic_path` (an error leaves an existing file as
+    it was)."""
+    import numpy as np
+
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as f:  # a file object: np.savez would append '.npz' to a bare path
+            np.savez(f, **arrays)
