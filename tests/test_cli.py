@@ -63,7 +63,7 @@ def test_bench_and_eval_tables_name_the_machine_and_its_speed(tmp_path, capsys):
 def test_model_option_only_where_a_learned_flow_runs(capsys):
     assert main(["eval", "seg", "--model", "m.onnx"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert err == ["evseg eval: error: --model applies to flow, flow-real, pipeline, not to 'seg'"]
+    assert err == ["evseg eval: error: --model applies to flow, flow-real, pipeline, flow-errors, not to 'seg'"]
 
 
 @pytest.fixture
@@ -196,17 +196,17 @@ def test_seeds_set_and_presets_options_reach_the_simulated_evaluations(fake_eval
     (["eval", "seg", "--seeds", "900-9x"], "--seeds: '900-9x' is not a seed or a range A-B (e.g. 900-909)"),
     (["eval", "seg", "--seeds", "910-900"], "--seeds: range '910-900' runs backwards"),
     (["eval", "seg", "--seeds", "900,900"], "--seeds: '900,900' must name distinct non-negative seeds"),
-    (["eval", "flow", "--seeds", "900"], "--seeds applies to seg, pipeline, not to 'flow' (it runs fixed scenes or recordings)"),
+    (["eval", "flow", "--seeds", "900"], "--seeds applies to seg, pipeline, flow-errors, not to 'flow' (it runs fixed scenes or recordings)"),
     (["eval", "pipeline", "--seeds", "40-42"], "--seeds: [40, 41, 42] are below 900; the normal-flow model trained on "
                                                 "scene seeds 0-47, so use validation seeds (900-999) or the held-out "
                                                 "ones (>= 1000, the default)"),
     (["eval", "seg", "--set", "lambda_m"], "--set: expected FIELD=VALUE, got 'lambda_m'"),
     (["eval", "seg", "--set", "lambda_m=[1"], "--set: cannot read the value of 'lambda_m=[1'"),
-    (["eval", "pipeline-real", "--set", "lambda_m=60"], "--set applies to seg, pipeline, not to 'pipeline-real' "
+    (["eval", "pipeline-real", "--set", "lambda_m=60"], "--set applies to seg, pipeline, flow-errors, not to 'pipeline-real' "
                                                          "(it has no segmentation presets to change)"),
     (["eval", "seg", "--quick", "--set", "lambda_m=abc"], "evaluate_oracle: field 'lambda_m' must be float, got 'abc'"),
     (["eval", "seg", "--quick", "--set", "lambda_mm=60"], "evaluate_oracle: unknown segmentation parameter(s) ['lambda_mm']"),
-    (["eval", "flow", "--presets", "eed_like"], "--presets applies to seg, pipeline, not to 'flow' (it runs fixed "
+    (["eval", "flow", "--presets", "eed_like"], "--presets applies to seg, pipeline, flow-errors, not to 'flow' (it runs fixed "
                                                  "scenes or recordings)"),
     (["eval", "seg", "--quick", "--presets", "eed"], "evaluate_oracle: unknown or no simulator preset(s) ['eed']; "
                                                       "known: ['eed_like', 'evimo_like', 'driving_like']"),

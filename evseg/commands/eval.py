@@ -26,11 +26,12 @@ TARGETS = {
     "pipeline-real": "evseg.pipeline_real:evaluate_pipeline_real",
     "static": "evseg.pipeline_eval:evaluate_static_camera",
     "live": "evseg.live_eval:evaluate_live",
+    "flow-errors": "evseg.flow_errors_eval:evaluate_flow_errors",
 }
 
 
 # Targets whose function takes ``model_path`` (a normal-flow ONNX file; default the shipped one).
-MODEL_TARGETS = ("flow", "flow-real", "pipeline")
+MODEL_TARGETS = ("flow", "flow-real", "pipeline", "flow-errors")
 
 # Targets whose function takes ``mirrors`` (the learned flow's mirror looks, ``evseg flow --mirrors``).
 MIRRORS_TARGETS = ("flow", "flow-real", "pipeline", "pipeline-real", "static")
@@ -42,7 +43,7 @@ TRACKED_MIRRORS_TARGETS = ("pipeline", "pipeline-real", "static")
 SLOW_EDGES_TARGETS = ("pipeline", "pipeline-real", "static")
 
 # Targets whose function takes ``seeds`` and ``overrides`` (simulated scenes, segmentation presets).
-SETTINGS_TARGETS = ("seg", "pipeline")
+SETTINGS_TARGETS = ("seg", "pipeline", "flow-errors")
 
 FIRST_VALIDATION_SEED = 900
 """The shipped normal-flow model trained on scene seeds 0-47 (``configs/train/default.yaml``):
@@ -91,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
         seeds = _only_for(args.target, "--seeds", SETTINGS_TARGETS, parse_seeds(args.seeds),
                           "it runs fixed scenes or recordings")
         low = [s for s in seeds if s < FIRST_VALIDATION_SEED]
-        if args.target == "pipeline" and low:
+        if args.target in ("pipeline", "flow-errors") and low:
             raise EvsegError(f"--seeds: {low[:5]} are below {FIRST_VALIDATION_SEED}; the normal-flow model "
                              "trained on scene seeds 0-47, so use validation seeds (900-999) or the held-out "
                              "ones (>= 1000, the default)")
