@@ -394,11 +394,12 @@ def confirmed_flows(starts, nx, ny, cert, max_run, rel_tol, abs_tol):  # pragma:
 
 
 @njit(cache=True, nogil=True)
-def data_cost_matrix(q, x, y, nx, ny, sigma, node_scale, confidence, tau2):  # pragma: no cover
+def data_cost_matrix(q, x, y, nx, ny, sigma, node_scale, node_angle, confidence, tau2):  # pragma: no cover
     """(M, L) truncated squared normalised residuals, the operations of
     :func:`evseg.segmentation.energy.data_costs` in the same order (so the same floats) in
     one pass instead of ~10 numpy passes over (M, L) temporaries. ``q``: (L, 4) linear
-    parameters (a, b, t_x, t_y); ``node_scale`` / ``confidence``: (M,), ones when unused."""
+    parameters (a, b, t_x, t_y); ``node_scale`` / ``node_angle`` / ``confidence``: (M,), ones /
+    zeros / ones when unused. A node with ``node_angle`` 0 takes exactly the plain path."""
     m = x.shape[0]
     n_labels = q.shape[0]
     out = np.empty((m, n_labels))
@@ -406,12 +407,19 @@ def data_cost_matrix(q, x, y, nx, ny, sigma, node_scale, confidence, tau2):  # p
         norm = np.hypot(nx[k], ny[k])
         hx = nx[k] / norm
         hy = ny[k] / norm
+        a = node_angle[k] / (sigma * node_scale[k])
         for j in range(n_labels):
             ux = q[j, 0] * x[k] - q[j, 1] * y[k] + q[j, 2]
             uy = q[j, 1] * x[k] + q[j, 0] * y[k] + q[j, 3]
             r = (hx * ux + hy * uy - norm) / sigma
             r = r / node_scale[k]
             d = r * r
+            if a != 0.0:
+                # Gaussian NLL with the model's flow along the edge in the scale (relative
+                # to the model-free scale, so the plain path is the a = 0 case).
+                s = a * (hx * uy - hy * ux)
+                f = 1.0 + s * s
+                d = d / f + np.log(f)
             if d > tau2:
                 d = tau2
             out[k, j] = d * confidence[k]

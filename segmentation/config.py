@@ -89,6 +89,19 @@ class SegmentationConfig:
     """'confidence' mode: the uncertainty (same unit) at which the confidence is 1/2."""
     uncertainty_gain: float = 1.0
     """'scale' mode: multiplier of |n| * uncertainty in the node's residual scale."""
+    uncertainty_angle_gain: float = 0.0
+    """'scale' mode: the flow's angular uncertainty propagated through each motion model.
+    A normal-flow direction off by delta changes node k's residual under model l by about
+    delta * (h_k^perp . u_l(x_k)), the model's flow along the edge (h_k = n_k / |n_k|), so
+    with a = uncertainty_angle_gain * uncertainty_k the cost becomes the Gaussian negative log
+    likelihood r^2 / s_kl^2 + log(s_kl^2 / sigma_k^2), s_kl^2 = sigma_k^2 + (a h_k^perp .
+    u_l(x_k))^2, truncated at tau^2 as before. Under a slow background model a fast object's
+    uncertain flows keep their full residual (sigma_k alone); under a model that moves along
+    the edge the same residual is tolerated, at the price of the log term. The fits keep the
+    model-free weight (sigma / sigma_k)^2. 0 = off (the data term of 'scale' alone).
+    Validation (learned flow, seeds 900-909 / 910-919, docs/segmentation.md): windows with a
+    false object fall in the eed_like and evimo_like presets for about the same detection;
+    the outdoor_like preset lost car detection and leaves it off."""
     origin_px: tuple[float, float] | None = None
     """Origin (column, row) in px of the affine model's x; None = sensor centre
     ((w-1)/2, (h-1)/2) when the sensor size is known, else (0, 0)."""
@@ -291,7 +304,7 @@ class SegmentationConfig:
                      "min_flow_px_s", "residual_scale_px_s",
                      "residual_scale_rel", "residual_scale_noise", "lambda_p", "lambda_m",
                      "lm_damping", "mask_dilate_px", "merge_tol", "split_gap_px", "occlusion_gap_px",
-                     "uncertainty_gain", "affine_prior_px", "max_object_parts",
+                     "uncertainty_gain", "uncertainty_angle_gain", "affine_prior_px", "max_object_parts",
                      "tracked_label_cost", "support_exponent", "contrast_max_noise"):
             if getattr(self, name) < 0:
                 raise ConfigError(f"SegmentationConfig.{name} must be >= 0, got {getattr(self, name)}")

@@ -4,8 +4,9 @@
 
 * Data term D (M, L): c_k * min((r_kl / sigma)^2, tau^2), with r the normalised normal-flow
   residual (px/s), sigma the residual scale (px/s), tau the truncation and c_k the node's
-  confidence. Truncation makes an outlier flow cost the same under every model, so outliers
-  cannot create or drag models; their label is decided by their neighbours.
+  confidence (a node's own scale and the angular term of :func:`data_costs` refine sigma).
+  Truncation makes an outlier flow cost the same under every model, so outliers cannot
+  create or drag models; their label is decided by their neighbours.
 * Potts: w_ij = lambda_p * (edge weight) for every graph edge whose ends differ.
 * Label cost (Delong et al. 2012): h_l = lambda_m for every label used by at least one node.
 
@@ -31,6 +32,7 @@ def data_costs(
     truncation: float,
     confidence: np.ndarray | None = None,
     node_scale: np.ndarray | None = None,
+    node_angle: np.ndarray | None = None,
 ) -> np.ndarray:
     """Truncated squared normalised residuals, (M, L), dimensionless (units of sigma^2).
 
@@ -40,6 +42,23 @@ def data_costs(
         node_scale: (M,) >= 1 or None: node k's residual scale is ``sigma_px_s * node_scale[k]``
             (a flow known to be less accurate tolerates a larger residual, but an outlier
             still costs tau^2).
+        node_angle: (M,) >= 0 rad or None: the angular uncertainty a_k of node k's flow
+            direction, propagated through each model: the residual scale under model l becomes
+            s_kl = sigma_k * sqrt(1 + (a_k (h_k^perp . u_l(x_k)) / sigma_k)^2) (h_k = n_k / |n_k|,
+            u_l the model's flow) and the cost r^2 / s_kl^2 + log(s_kl^2 / sigma_k^2), before
+            truncation (``SegmentationConfig.uncertainty_angle_gain``).
+
+    Example:
+        One node (edge along y, |n| = 10 px/s) and two models: at rest, and moving 20 px/s
+        along the edge. Without an angular uncertainty both cost (10 / 5)^2 = 4; with
+        a = 0.25 rad the second's scale grows by (0.25 * 20 / 5)^2 = 1: 4 / 2 + log 2.
+
+        >>> m = np.array([[1.0, 0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 20.0]])
+        >>> one = np.array([0.0]); n = (np.array([10.0]), np.array([0.0]))
+        >>> data_costs(m, one, one, *n, 5.0, 3.0).round(4).tolist()
+        [[4.0, 4.0]]
+        >>> data_costs(m, one, one, *n, 5.0, 3.0, node_angle=np.array([0.25])).round(4).tolist()
+        [[4.0, 2.6931]]
     """
     f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
     m = len(np.asarray(x))
@@ -47,6 +66,7 @@ def data_costs(
     return data_cost_matrix(
         linear_parameters(np.asarray(models, dtype=np.float64).reshape(-1, 4)), f64(x), f64(y), f64(nx), f64(ny),
         float(sigma_px_s), ones if node_scale is None else f64(node_scale),
+        np.zeros(m) if node_angle is None else f64(node_angle),
         ones if confidence is None else f64(confidence), float(truncation) * float(truncation))
 
 

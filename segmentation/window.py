@@ -42,17 +42,19 @@ def _validate(x, y, t, nx, ny, uncertainty):
 
 def _uncertainty_terms(
     cfg: SegmentationConfig, graph, uncertainty: np.ndarray | None, sigma: float
-) -> tuple[np.ndarray, np.ndarray | None]:
-    """Per-node data-term confidence (M,) and residual scale factor (M,) >= 1 or None, from the
-    flows' uncertainty as ``cfg.uncertainty_use`` says (see :class:`SegmentationConfig`)."""
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """Per-node data-term confidence (M,), residual scale factor (M,) >= 1 or None and angular
+    uncertainty (M,) rad or None (``uncertainty_angle_gain``), from the flows' uncertainty as
+    ``cfg.uncertainty_use`` says (see :class:`SegmentationConfig`)."""
     m = len(graph)
     if uncertainty is None or cfg.uncertainty_use == "ignore":
-        return np.ones(m), None
+        return np.ones(m), None, None
     if cfg.uncertainty_use == "confidence":
-        return graph.confidence, None
-    u = np.asarray(uncertainty, dtype=np.float64)[graph.index]
-    spread = cfg.uncertainty_gain * np.hypot(graph.nx, graph.ny) * np.nan_to_num(u, nan=0.0, posinf=1e6)
-    return np.ones(m), np.sqrt(1.0 + (spread / sigma) ** 2)
+        return graph.confidence, None, None
+    u = np.nan_to_num(np.asarray(uncertainty, dtype=np.float64)[graph.index], nan=0.0, posinf=1e6)
+    spread = cfg.uncertainty_gain * np.hypot(graph.nx, graph.ny) * u
+    angle = cfg.uncertainty_angle_gain * u if cfg.uncertainty_angle_gain > 0 else None
+    return np.ones(m), np.sqrt(1.0 + (spread / sigma) ** 2), angle
 
 
 SUPPORT_WEIGHT_RANGE = (0.25, 4.0)
@@ -138,6 +140,8 @@ class PreparedWindow:
             it needs when it is not there.
         flow_noise_rel: the flow's 1-ring noise over its median magnitude (NaN when not
             measured), which sets the strength of contrast-sensitive Potts.
+        node_angle: (M,) angular uncertainty (rad) propagated through each model's flow in the
+            data term, or None (``uncertainty_angle_gain`` 0).
     """
 
     config: SegmentationConfig
@@ -162,6 +166,7 @@ class PreparedWindow:
     timings: dict
     sampled: tuple[SampledCandidates, ...] = ()
     flow_noise_rel: float = float("nan")
+    node_angle: np.ndarray | None = None
 
     @property
     def max_propagation_px(self) -> float:
@@ -180,7 +185,8 @@ def lm_kwargs(pw: PreparedWindow) -> dict:
 def window_costs(pw: PreparedWindow, models: np.ndarray) -> np.ndarray:
     """(M, L) data costs of ``models`` at the window's nodes."""
     g = pw.graph
-    return data_costs(models, pw.xr, pw.yr, g.nx, g.ny, pw.sigma, pw.config.truncation, pw.conf, pw.node_scale)
+    return data_costs(models, pw.xr, pw.yr, g.nx, g.ny, pw.sigma, pw.config.truncation, pw.conf, pw.node_scale,
+                      pw.node_angle)
 
 
 def sample_candidates(prepared: PreparedWindow, n: int) -> SampledCandidates:
@@ -282,7 +288,7 @@ def prepare_window(
         noise_rel = noise / float(np.median(norm))
         if cfg.residual_scale_noise * noise > sigma:
             sigma, rings = cfg.residual_scale_noise * noise, None  # the rings' scale changed
-    conf, node_scale = _uncertainty_terms(cfg, graph, a.get("uncertainty"), sigma)
+    conf, node_scale, node_angle = _uncertainty_terms(cfg, graph, a.get("uncertainty"), sigma)
     conf = conf * support_weights(graph.support, cfg.support_exponent)
     if cfg.sampling_flow == "local" and m:
         if rings is None:
@@ -309,7 +315,7 @@ def prepare_window(
         config=cfg, sensor_size=sensor_size, origin=origin, graph=graph, xr=xr, yr=yr, grown=grown,
         lambda_m=lambda_m, sigma=sigma, edge_w=edge_w, radius=radius, t_ref=t_ref, conf=conf,
         node_scale=node_scale, fit_w=fit_w, vote_x=vote_x, vote_y=vote_y, voting=voting,
-        suspect=suspect, timings=timings, flow_noise_rel=noise_rel)
+        suspect=suspect, timings=timings, flow_noise_rel=noise_rel, node_angle=node_angle)
 
 
 def round0_voters(vote_x, vote_y, voting, cand_t, bin_px_s):

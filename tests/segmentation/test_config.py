@@ -96,3 +96,15 @@ def test_overrides_are_checked_like_yaml_fields():
         with_overrides(base, {"lambda_m": "abc"}, "here")
     with pytest.raises(ConfigError, match=r"^here: SegmentationConfig.lambda_m must be >= 0, got -1.0$"):
         with_overrides(base, {"lambda_m": -1}, "here")
+
+
+def test_angular_uncertainty_gain_is_set_where_it_was_validated():
+    """uncertainty_angle_gain is off by default and in outdoor_like (it cost car detection
+    there), on in eed_like and evimo_like (at evimo_like's uncertainty_gain), and never < 0."""
+    assert SegmentationConfig().uncertainty_angle_gain == 0.0
+    assert load_segmentation_config("outdoor_like").uncertainty_angle_gain == 0.0
+    assert load_segmentation_config("eed_like").uncertainty_angle_gain == 1.0
+    evimo = load_segmentation_config("evimo_like")
+    assert evimo.uncertainty_angle_gain == evimo.uncertainty_gain == 1.25
+    with pytest.raises(ConfigError, match=r"uncertainty_angle_gain must be >= 0, got -0.5"):
+        SegmentationConfig(uncertainty_angle_gain=-0.5)

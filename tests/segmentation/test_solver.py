@@ -275,6 +275,44 @@ def test_data_cost_with_node_scale_is_exact():
     assert data_costs(*args, confidence=np.array([0.5]), node_scale=np.array([1.5]))[0, 0] == pytest.approx(2.0)
 
 
+def test_data_cost_with_angular_uncertainty_is_exact():
+    """The angular uncertainty a propagated through each model (uncertainty_angle_gain):
+    s^2 = (sigma s_k)^2 + (a * flow along the edge)^2, cost r^2 / s^2 + log(s^2 / (sigma s_k)^2)."""
+    from evseg.segmentation.energy import data_costs
+
+    # Node at the origin, flow (4, 0) (edge along y). Models: translation (10, 0) (along the
+    # normal: residual 6, nothing along the edge) and (10, 8) (same residual, 8 px/s along it).
+    models = np.array([[0.0, 0.0, 10.0, 0.0], [0.0, 0.0, 10.0, 8.0]])
+    one = np.array([0.0])
+    args = (models, one, one, np.array([4.0]), one, 2.0, 5.0)
+    plain = data_costs(*args, node_scale=np.array([1.5]))
+    assert plain[0] == pytest.approx([4.0, 4.0])  # (6 / 3)^2
+    # a = 0.5 rad: 0.5 * 8 = 4 px/s along the edge; s^2 = 9 + 16 = 25.
+    cost = data_costs(*args, node_scale=np.array([1.5]), node_angle=np.array([0.5]))
+    assert cost[0] == pytest.approx([4.0, 36 / 25 + np.log(25 / 9)])
+    # No angular uncertainty is exactly the plain cost (same floats), and truncation still caps it.
+    assert np.array_equal(data_costs(*args, node_scale=np.array([1.5]), node_angle=np.zeros(1)), plain)
+    huge = data_costs(*args, node_scale=np.array([1.5]), node_angle=np.array([1e6]))
+    assert huge[0, 0] == pytest.approx(4.0) and huge[0, 1] == pytest.approx(25.0)  # tau^2
+
+
+def test_angular_uncertainty_is_used_and_keeps_the_fast_object():
+    """With uncertainty_angle_gain the uncertain fast object of the scene below is still found,
+    and the labelling is not the one without the term (it is used)."""
+    s = synthetic_scene(n_flows=2500, n_objects=1, seed=2)
+    rng = np.random.default_rng(0)
+    u = np.where(s.label == 1, 0.3, 0.05)
+    gain = 1.0 + u * rng.standard_normal(len(u))
+    nx, ny = s.nx * gain, s.ny * gain
+    kw = dict(uncertainty=u, sensor_size=s.sensor_size)
+    r = segment_normal_flow(s.x, s.y, s.t, nx, ny, config=SegmentationConfig(uncertainty_angle_gain=1.0), **kw)
+    assert r.n_objects == 1
+    lab, share = majority(s.label[r.node_index], r.node_labels, 1)
+    assert lab == 1 and share > 0.9
+    r0 = segment_normal_flow(s.x, s.y, s.t, nx, ny, config=SegmentationConfig(), **kw)
+    assert not np.array_equal(r0.node_labels, r.node_labels)
+
+
 def test_uncertain_fast_object_keeps_its_pull_in_scale_mode():
     """Flows with a relative magnitude error of about their uncertainty (the learned flow: a
     fast object's flows are the least certain) still give the object, with 'scale' use of the
