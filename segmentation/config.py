@@ -89,7 +89,7 @@ class SegmentationConfig:
     """'confidence' mode: the uncertainty (same unit) at which the confidence is 1/2."""
     uncertainty_gain: float = 1.0
     """'scale' mode: multiplier of |n| * uncertainty in the node's residual scale."""
-    uncertainty_angle_gain: float = 0.0
+    uncertainty_angle_gain: float = 1.0
     """'scale' mode: the flow's angular uncertainty propagated through each motion model.
     A normal-flow direction off by delta changes node k's residual under model l by about
     delta * (h_k^perp . u_l(x_k)), the model's flow along the edge (h_k = n_k / |n_k|), so
@@ -100,8 +100,10 @@ class SegmentationConfig:
     the edge the same residual is tolerated, at the price of the log term. The fits keep the
     model-free weight (sigma / sigma_k)^2. 0 = off (the data term of 'scale' alone).
     Validation (learned flow, seeds 900-909 / 910-919, docs/segmentation.md): windows with a
-    false object fall in the eed_like and evimo_like presets for about the same detection;
-    the outdoor_like preset lost car detection and leaves it off."""
+    false object fall with these defaults and in the eed_like and evimo_like presets, for
+    about the same detection; the outdoor_like and static_camera presets lost detection and
+    set it to 0. It assumes the uncertainty is about as large as the flow's real error: for a
+    flow more accurate than its stated uncertainty set 0."""
     origin_px: tuple[float, float] | None = None
     """Origin (column, row) in px of the affine model's x; None = sensor centre
     ((w-1)/2, (h-1)/2) when the sensor size is known, else (0, 0)."""

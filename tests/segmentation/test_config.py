@@ -99,10 +99,12 @@ def test_overrides_are_checked_like_yaml_fields():
 
 
 def test_angular_uncertainty_gain_is_set_where_it_was_validated():
-    """uncertainty_angle_gain is off by default and in outdoor_like (it cost car detection
-    there), on in eed_like and evimo_like (at evimo_like's uncertainty_gain), and never < 0."""
-    assert SegmentationConfig().uncertainty_angle_gain == 0.0
+    """uncertainty_angle_gain is on by default, in eed_like and in evimo_like (at its
+    uncertainty_gain), off in outdoor_like and static_camera (it cost detection there), and
+    never < 0."""
+    assert SegmentationConfig().uncertainty_angle_gain == 1.0
     assert load_segmentation_config("outdoor_like").uncertainty_angle_gain == 0.0
+    assert load_segmentation_config("static_camera").uncertainty_angle_gain == 0.0
     assert load_segmentation_config("eed_like").uncertainty_angle_gain == 1.0
     evimo = load_segmentation_config("evimo_like")
     assert evimo.uncertainty_angle_gain == evimo.uncertainty_gain == 1.25

@@ -309,7 +309,7 @@ def test_angular_uncertainty_is_used_and_keeps_the_fast_object():
     assert r.n_objects == 1
     lab, share = majority(s.label[r.node_index], r.node_labels, 1)
     assert lab == 1 and share > 0.9
-    r0 = segment_normal_flow(s.x, s.y, s.t, nx, ny, config=SegmentationConfig(), **kw)
+    r0 = segment_normal_flow(s.x, s.y, s.t, nx, ny, config=SegmentationConfig(uncertainty_angle_gain=0.0), **kw)
     assert not np.array_equal(r0.node_labels, r.node_labels)
 
 
