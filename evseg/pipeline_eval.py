@@ -179,21 +179,27 @@ def summary_row(name: str, s, ae: float, ms: float) -> dict:
 
 
 def evaluate_static_camera(quick: bool = False, slow_edges: bool = False, mirrors: int = 1,
-                           tracked_mirrors: int = 1) -> list[dict]:
+                           tracked_mirrors: int = 1, seeds=None, overrides: dict | None = None) -> list[dict]:
     """Simulated scenes from a camera that does not move (scene preset ``static_camera``):
     pooled scores with the default settings, which take the largest motion for the background,
     and with the ``static_camera`` segmentation preset, which keeps zero motion as the
     background; each with the simulator's ground-truth normal flow and with the shipped
     learned flow (``slow_edges``: with the slow-edge look; ``mirrors``: its mirror looks;
     ``tracked_mirrors``: its mirror looks in the tracked boxes). Full: 8 seeds (1000-1007) of 300 ms;
-    quick: 2 seeds of 100 ms."""
+    quick: 2 seeds of 100 ms. ``seeds``: other scene seeds (validation: 900-999);
+    ``overrides``: :class:`~evseg.segmentation.SegmentationConfig` fields set on both settings
+    (``evseg eval static --seeds --set``)."""
     from evseg.pipeline import PipelineConfig
     from evseg.segmentation import SegmentationConfig, load_segmentation_config
+    from evseg.segmentation.config import with_overrides
     from evseg.simulator import load_scene_preset, simulate
 
-    seeds = range(1000, 1002) if quick else range(1000, 1008)
+    settings = {name: with_overrides(cfg, overrides, "evaluate_static_camera")  # bad keys fail first
+                for name, cfg in (("default", SegmentationConfig()),
+                                  ("static_camera", load_segmentation_config("static_camera")))}
+    if seeds is None:
+        seeds = range(1000, 1002) if quick else range(1000, 1008)
     duration_us = 100_000 if quick else 300_000
-    settings = {"default": SegmentationConfig(), "static_camera": load_segmentation_config("static_camera")}
     scores: dict[tuple[str, str], list] = {}
     for seed in seeds:
         rec = simulate(load_scene_preset("static_camera"), seed=seed, duration_us=duration_us)

@@ -160,11 +160,11 @@ def ball_object(boxes: dict[int, tuple[int, int, int, int]], point: tuple[float,
 
 def segment_real_recording(
     path: Path, preset: str | None, max_windows: int | None = None, flow: str = "learned",
-    slow_edges: bool = False, mirrors: int = 1, tracked_mirrors: int = 1,
+    slow_edges: bool = False, mirrors: int = 1, tracked_mirrors: int = 1, overrides: dict | None = None,
 ) -> tuple[list, list[float]]:
     """Run the pipeline (10 ms windows; ``flow``: 'learned' = the shipped model, or
-    'planefit'; ``slow_edges``, ``mirrors``, ``tracked_mirrors``: :class:`~evseg.pipeline.PipelineConfig`'s)
-    over ``path``.
+    'planefit'; ``slow_edges``, ``mirrors``, ``tracked_mirrors``: :class:`~evseg.pipeline.PipelineConfig`'s;
+    ``overrides``: segmentation fields set on top of ``preset``) over ``path``.
 
     Returns the window results (masks, events and raw segmentation dropped to save memory)
     and the wall time of each window (s, flow included). ``max_windows`` stops early."""
@@ -174,7 +174,7 @@ def segment_real_recording(
 
     stream = read_events(path)
     results, times = [], []
-    it = _pipeline(stream.sensor_size, preset, flow, slow_edges, mirrors, tracked_mirrors).run(stream)
+    it = _pipeline(stream.sensor_size, preset, flow, slow_edges, mirrors, tracked_mirrors, overrides).run(stream)
     while max_windows is None or len(results) < max_windows:
         t0 = time.perf_counter()
         res = next(it, None)
@@ -186,13 +186,15 @@ def segment_real_recording(
 
 
 def _pipeline(sensor_size: tuple[int, int], preset: str | None, flow: str = "learned", slow_edges: bool = False,
-              mirrors: int = 1, tracked_mirrors: int = 1):
+              mirrors: int = 1, tracked_mirrors: int = 1, overrides: dict | None = None):
     """The pipeline the evaluation and the pictures use: 10 ms windows, ``preset`` (None =
-    default settings), ``flow`` estimator."""
+    default settings) with ``overrides`` set on it, ``flow`` estimator."""
     from evseg.pipeline import MotionSegmentationPipeline, PipelineConfig
     from evseg.segmentation import SegmentationConfig, load_segmentation_config
+    from evseg.segmentation.config import with_overrides
 
-    seg = load_segmentation_config(preset) if preset else SegmentationConfig()
+    seg = with_overrides(load_segmentation_config(preset) if preset else SegmentationConfig(), overrides,
+                         "evaluate_pipeline_real")
     return MotionSegmentationPipeline(PipelineConfig(flow=flow, segmentation=seg, slow_edges=slow_edges, mirrors=mirrors,
                                                      tracked_mirrors=tracked_mirrors), sensor_size=sensor_size)
 
@@ -225,17 +227,22 @@ def summarize_real(results: list, times: list[float], expect: str, track: np.nda
 
 
 def evaluate_pipeline_real(quick: bool = False, flow: str = "learned", slow_edges: bool = False,
-                           mirrors: int = 1, tracked_mirrors: int = 1) -> list[dict]:
+                           mirrors: int = 1, tracked_mirrors: int = 1, overrides: dict | None = None) -> list[dict]:
     """``evseg eval pipeline-real``: one row per shared real recording (module docstring).
 
     Quick: the recordings marked ``quick``, at most 10 windows each. ``flow``: the normal-flow
     estimator, 'learned' (the command's) or 'planefit' (from Python, for comparison);
     ``slow_edges``: the learned flow's slow-edge look (``--slow-edges``); ``mirrors``: its
     mirror looks (``--mirrors``); ``tracked_mirrors``: its mirror looks in the tracked boxes
-    (``--tracked-mirrors``).
+    (``--tracked-mirrors``); ``overrides``: :class:`~evseg.segmentation.SegmentationConfig`
+    fields set on every row's preset (``--set``; the rows' preset column still names the preset).
     """
     from evseg.errors import EvsegError
+    from evseg.segmentation import SegmentationConfig
+    from evseg.segmentation.config import with_overrides
     from evseg.train.evaluate import shared_data_dir
+
+    with_overrides(SegmentationConfig(), overrides, "evaluate_pipeline_real")  # bad keys fail before any work
 
     root = shared_data_dir()
     if not root.is_dir():
@@ -249,7 +256,7 @@ def evaluate_pipeline_real(quick: bool = False, flow: str = "learned", slow_edge
             continue
         results, times = segment_real_recording(path, rec.preset, max_windows=10 if quick else None, flow=flow,
                                                 slow_edges=slow_edges, mirrors=mirrors,
-                                                tracked_mirrors=tracked_mirrors)
+                                                tracked_mirrors=tracked_mirrors, overrides=overrides)
         rows.append({"recording": rec.path, "preset": rec.preset or "default",
                      "expected": _EXPECT.get(rec.expect, rec.expect),
                      **summarize_real(results, times, rec.expect, track)})

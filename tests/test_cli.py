@@ -189,6 +189,12 @@ def test_seeds_set_and_presets_options_reach_the_simulated_evaluations(fake_eval
                      "--set", "mask_method=hull", "--presets", "driving_like, eed_like", "--out", out]) == 0
         assert seen[target] == {"seeds": [900, 901, 902, 950], "overrides": {"lambda_m": 60, "mask_method": "hull"},
                                 "presets": ["driving_like", "eed_like"]}
+    # The still-camera evaluation takes seeds and settings (one scene preset, so no --presets);
+    # the real recordings take settings (set on each recording's preset).
+    assert main(["eval", "static", "--seeds", "900-901", "--set", "uncertainty_angle_gain=0", "--out", out]) == 0
+    assert seen["static"] == {"seeds": [900, 901], "overrides": {"uncertainty_angle_gain": 0}}
+    assert main(["eval", "pipeline-real", "--set", "lambda_m=60", "--out", out]) == 0
+    assert seen["pipeline-real"] == {"overrides": {"lambda_m": 60}}
     capsys.readouterr()
 
 
@@ -196,16 +202,25 @@ def test_seeds_set_and_presets_options_reach_the_simulated_evaluations(fake_eval
     (["eval", "seg", "--seeds", "900-9x"], "--seeds: '900-9x' is not a seed or a range A-B (e.g. 900-909)"),
     (["eval", "seg", "--seeds", "910-900"], "--seeds: range '910-900' runs backwards"),
     (["eval", "seg", "--seeds", "900,900"], "--seeds: '900,900' must name distinct non-negative seeds"),
-    (["eval", "flow", "--seeds", "900"], "--seeds applies to seg, pipeline, flow-errors, not to 'flow' (it runs fixed scenes or recordings)"),
+    (["eval", "flow", "--seeds", "900"], "--seeds applies to seg, pipeline, flow-errors, static, not to 'flow' (it runs fixed "
+                                         "scenes or recordings)"),
+    (["eval", "static", "--seeds", "5"], "--seeds: [5] are below 900; the normal-flow model trained on scene seeds 0-47, "
+                                         "so use validation seeds (900-999) or the held-out ones (>= 1000, the default)"),
     (["eval", "pipeline", "--seeds", "40-42"], "--seeds: [40, 41, 42] are below 900; the normal-flow model trained on "
                                                 "scene seeds 0-47, so use validation seeds (900-999) or the held-out "
                                                 "ones (>= 1000, the default)"),
     (["eval", "seg", "--set", "lambda_m"], "--set: expected FIELD=VALUE, got 'lambda_m'"),
     (["eval", "seg", "--set", "lambda_m=[1"], "--set: cannot read the value of 'lambda_m=[1'"),
-    (["eval", "pipeline-real", "--set", "lambda_m=60"], "--set applies to seg, pipeline, flow-errors, not to 'pipeline-real' "
-                                                         "(it has no segmentation presets to change)"),
+    (["eval", "flow", "--set", "lambda_m=60"], "--set applies to seg, pipeline, flow-errors, static, pipeline-real, not to "
+                                                "'flow' (it segments nothing)"),
+    (["eval", "static", "--presets", "eed_like"], "--presets applies to seg, pipeline, flow-errors, not to 'static' (it runs "
+                                                   "fixed scenes or recordings)"),
     (["eval", "seg", "--quick", "--set", "lambda_m=abc"], "evaluate_oracle: field 'lambda_m' must be float, got 'abc'"),
     (["eval", "seg", "--quick", "--set", "lambda_mm=60"], "evaluate_oracle: unknown segmentation parameter(s) ['lambda_mm']"),
+    (["eval", "static", "--quick", "--set", "lambda_mm=60"],
+     "evaluate_static_camera: unknown segmentation parameter(s) ['lambda_mm']"),
+    (["eval", "pipeline-real", "--quick", "--set", "lambda_mm=60"],
+     "evaluate_pipeline_real: unknown segmentation parameter(s) ['lambda_mm']"),
     (["eval", "flow", "--presets", "eed_like"], "--presets applies to seg, pipeline, flow-errors, not to 'flow' (it runs fixed "
                                                  "scenes or recordings)"),
     (["eval", "seg", "--quick", "--presets", "eed"], "evaluate_oracle: unknown or no simulator preset(s) ['eed']; "

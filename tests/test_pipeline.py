@@ -655,6 +655,36 @@ def test_evaluate_pipeline_sets_segmentation_overrides_on_every_preset(monkeypat
     assert seen == [0.35]
 
 
+def test_evaluate_static_camera_takes_seeds_and_overrides(monkeypatch):
+    """evaluate_static_camera(seeds=..., overrides=...) (`evseg eval static --seeds --set`)
+    simulates the seeds asked and sets the fields on both settings, the default and the
+    static_camera preset (the recording evaluation is stubbed to record them)."""
+    import evseg.pipeline_eval as pe
+    import evseg.simulator
+
+    asked, seen = [], []
+    monkeypatch.setattr(evseg.simulator, "simulate", lambda preset, seed, duration_us: asked.append(seed))
+
+    def record(rec, cfg, keep_results=False):
+        seen.append((cfg.segmentation.static_camera, cfg.segmentation.uncertainty_angle_gain))
+        return pe.RecordingEvaluation(scores=[], results=[], flow_median_ae_deg=float("nan"), ms_per_window=float("nan"))
+
+    monkeypatch.setattr(pe, "evaluate_recording", record)
+    pe.evaluate_static_camera(seeds=[903], overrides={"uncertainty_angle_gain": 0.5})
+    assert asked == [903]
+    assert seen == [(False, 0.5), (True, 0.5)] * 2  # ground-truth, then learned flow
+
+
+def test_real_recording_pipeline_sets_overrides_on_the_preset():
+    """evaluate_pipeline_real(overrides=...) (`evseg eval pipeline-real --set`): each recording's
+    preset with the fields set on it."""
+    from evseg.pipeline_real import _pipeline
+
+    seg = _pipeline((64, 48), "eed_like", overrides={"lambda_m": 55}).config.segmentation
+    assert seg.lambda_m == 55.0 and seg.residual_scale_noise == 2.0  # eed_like's own field kept
+    assert _pipeline((64, 48), None).config.segmentation.lambda_m == 80.0
+
+
 def test_evaluate_pipeline_simulates_the_seeds_asked(monkeypatch):
     """evaluate_pipeline(seeds=...) simulates those scenes (validation seeds, not the held-out
     1000-1007); the simulator is stubbed to record the first scene asked and stop."""

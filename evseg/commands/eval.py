@@ -42,8 +42,15 @@ TRACKED_MIRRORS_TARGETS = ("pipeline", "pipeline-real", "static")
 # Targets whose function takes ``slow_edges`` (the pipeline's learned flow with the slow-edge look).
 SLOW_EDGES_TARGETS = ("pipeline", "pipeline-real", "static")
 
-# Targets whose function takes ``seeds`` and ``overrides`` (simulated scenes, segmentation presets).
-SETTINGS_TARGETS = ("seg", "pipeline", "flow-errors")
+# Targets whose function takes ``seeds`` (simulated scenes), ``presets`` (a subset of the
+# simulator presets) and ``overrides`` (segmentation fields set on every preset it uses).
+SEEDS_TARGETS = ("seg", "pipeline", "flow-errors", "static")
+PRESETS_TARGETS = ("seg", "pipeline", "flow-errors")
+OVERRIDES_TARGETS = ("seg", "pipeline", "flow-errors", "static", "pipeline-real")
+
+# Targets that run the shipped normal-flow model on simulated scenes: seeds below the
+# validation range were its training scenes.
+LEARNED_FLOW_SEED_TARGETS = ("pipeline", "flow-errors", "static")
 
 FIRST_VALIDATION_SEED = 900
 """The shipped normal-flow model trained on scene seeds 0-47 (``configs/train/default.yaml``):
@@ -67,13 +74,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         f"tracks predict (evseg segment --tracked-mirrors); targets: {', '.join(TRACKED_MIRRORS_TARGETS)}")
     p.add_argument("--seeds", default=None, metavar="SEEDS",
                    help="scene seeds instead of the held-out ones, e.g. 900-909 or 900,905 (validation: "
-                        f"choose settings on these, never on the held-out seeds >= 1000); targets: {', '.join(SETTINGS_TARGETS)}")
+                        f"choose settings on these, never on the held-out seeds >= 1000); targets: {', '.join(SEEDS_TARGETS)}")
     p.add_argument("--presets", default=None, metavar="NAMES",
                    help="only these simulator presets, comma-separated (e.g. eed_like,ego_only); "
-                        f"targets: {', '.join(SETTINGS_TARGETS)}")
+                        f"targets: {', '.join(PRESETS_TARGETS)}")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="FIELD=VALUE",
                    help="a segmentation parameter set on every preset (SegmentationConfig field, YAML value; "
-                        f"repeatable), e.g. --set lambda_m=60; targets: {', '.join(SETTINGS_TARGETS)}")
+                        f"repeatable), e.g. --set lambda_m=60; targets: {', '.join(OVERRIDES_TARGETS)}")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -89,21 +96,21 @@ def run(args: argparse.Namespace) -> int:
         options["tracked_mirrors"] = _only_for(args.target, "--tracked-mirrors", TRACKED_MIRRORS_TARGETS,
                                                args.tracked_mirrors, "it has no object tracks")
     if args.seeds is not None:
-        seeds = _only_for(args.target, "--seeds", SETTINGS_TARGETS, parse_seeds(args.seeds),
+        seeds = _only_for(args.target, "--seeds", SEEDS_TARGETS, parse_seeds(args.seeds),
                           "it runs fixed scenes or recordings")
         low = [s for s in seeds if s < FIRST_VALIDATION_SEED]
-        if args.target in ("pipeline", "flow-errors") and low:
+        if args.target in LEARNED_FLOW_SEED_TARGETS and low:
             raise EvsegError(f"--seeds: {low[:5]} are below {FIRST_VALIDATION_SEED}; the normal-flow model "
                              "trained on scene seeds 0-47, so use validation seeds (900-999) or the held-out "
                              "ones (>= 1000, the default)")
         options["seeds"] = seeds
     if args.presets is not None:
-        options["presets"] = _only_for(args.target, "--presets", SETTINGS_TARGETS,
+        options["presets"] = _only_for(args.target, "--presets", PRESETS_TARGETS,
                                        [p.strip() for p in args.presets.split(",") if p.strip()],
                                        "it runs fixed scenes or recordings")
     if args.overrides:
-        options["overrides"] = _only_for(args.target, "--set", SETTINGS_TARGETS, parse_overrides(args.overrides),
-                                         "it has no segmentation presets to change")
+        options["overrides"] = _only_for(args.target, "--set", OVERRIDES_TARGETS, parse_overrides(args.overrides),
+                                         "it segments nothing")
     emit_table(fn(quick=args.quick, **options), args.out)
     return 0
 
