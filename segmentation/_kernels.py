@@ -408,21 +408,32 @@ def data_cost_matrix(q, x, y, nx, ny, sigma, node_scale, node_angle, confidence,
         hx = nx[k] / norm
         hy = ny[k] / norm
         a = node_angle[k] / (sigma * node_scale[k])
-        for j in range(n_labels):
-            ux = q[j, 0] * x[k] - q[j, 1] * y[k] + q[j, 2]
-            uy = q[j, 1] * x[k] + q[j, 0] * y[k] + q[j, 3]
-            r = (hx * ux + hy * uy - norm) / sigma
-            r = r / node_scale[k]
-            d = r * r
-            if a != 0.0:
-                # Gaussian NLL with the model's flow along the edge in the scale (relative
-                # to the model-free scale, so the plain path is the a = 0 case).
+        if a == 0.0:
+            for j in range(n_labels):
+                ux = q[j, 0] * x[k] - q[j, 1] * y[k] + q[j, 2]
+                uy = q[j, 1] * x[k] + q[j, 0] * y[k] + q[j, 3]
+                r = (hx * ux + hy * uy - norm) / sigma
+                r = r / node_scale[k]
+                d = r * r
+                if d > tau2:
+                    d = tau2
+                out[k, j] = d * confidence[k]
+        else:
+            # Gaussian NLL with the model's flow along the edge in the scale, relative to the
+            # model-free scale (so a = 0 is the plain path above).
+            for j in range(n_labels):
+                ux = q[j, 0] * x[k] - q[j, 1] * y[k] + q[j, 2]
+                uy = q[j, 1] * x[k] + q[j, 0] * y[k] + q[j, 3]
+                r = (hx * ux + hy * uy - norm) / sigma
+                r = r / node_scale[k]
                 s = a * (hx * uy - hy * ux)
                 f = 1.0 + s * s
-                d = d / f + np.log(f)
-            if d > tau2:
-                d = tau2
-            out[k, j] = d * confidence[k]
+                d = r * r / f
+                if d < tau2:  # log(f) >= 0: past tau^2 the cost is truncated anyway
+                    d += np.log(f)
+                if d > tau2:
+                    d = tau2
+                out[k, j] = d * confidence[k]
     return out
 
 
