@@ -2,6 +2,8 @@
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from evseg.segmentation.energy import energy, label_cost_energy, potts_energy
 
@@ -61,3 +63,37 @@ def test_contrast_weights():
     assert mid[0] == pytest.approx(np.exp(-2.0 / 3.0))
     np.testing.assert_array_equal(contrast_weights(data, edges, 0.5, strength=0.0), np.ones(4))
     assert contrast_weights(data, edges, 0.5, strength=0.5)[1] == 0.75
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 100_000), sigma=st.floats(0.5, 50.0), tau=st.floats(1.0, 5.0))
+def test_data_costs_with_angular_uncertainty_match_their_formula(seed, sigma, tau):
+    """The compiled cost (data_costs with node_scale, node_angle and confidence) equals the
+    documented formula evaluated in numpy: c_k * min(r^2 / s^2 + log(s^2 / s0^2), tau^2) with
+    s0 = sigma * node_scale_k, s^2 = s0^2 + (a_k * n_hat_perp . u_l(x_k))^2; nodes with a_k = 0
+    get exactly c_k * min((r / s0)^2, tau^2)."""
+    from evseg.segmentation.energy import data_costs
+    from evseg.segmentation.motion_model import flow_field
+
+    rng = np.random.default_rng(seed)
+    m, n_labels = 30, 4
+    x, y = rng.uniform(-150, 150, m), rng.uniform(-100, 100, m)
+    nx, ny = rng.normal(0, 80, m), rng.normal(0, 80, m)
+    models = np.column_stack([rng.uniform(0.8, 1.2, n_labels), rng.uniform(-0.3, 0.3, n_labels),
+                              rng.normal(0, 100, n_labels), rng.normal(0, 100, n_labels)])
+    scale = rng.uniform(1, 3, m)
+    angle = np.where(rng.random(m) < 0.3, 0.0, rng.uniform(0, 0.6, m))
+    conf = rng.uniform(0.2, 1, m)
+    got = data_costs(models, x, y, nx, ny, sigma, tau, conf, scale, angle)
+
+    norm = np.hypot(nx, ny)[:, None]
+    hx, hy = nx[:, None] / norm, ny[:, None] / norm
+    ux, uy = flow_field(models, x, y)  # (M, L) px/s
+    r = hx * ux + hy * uy - norm
+    s0 = sigma * scale[:, None]
+    s2 = s0**2 + (angle[:, None] * (hx * uy - hy * ux)) ** 2
+    want = conf[:, None] * np.minimum(r**2 / s2 + np.log(s2 / s0**2), tau**2)
+    np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-12)
+    plain = angle == 0
+    exact = conf[plain, None] * np.minimum((r[plain] / s0[plain]) ** 2, tau**2)
+    np.testing.assert_allclose(got[plain], exact, rtol=1e-12)
