@@ -272,6 +272,10 @@ def load_calibration(path: str | Path, camera: str | None = None) -> Calibration
             doc = yaml.safe_load(f)
     except FileNotFoundError:
         raise CalibrationError(f"{path}: calibration file not found") from None
+    except UnicodeDecodeError:
+        raise CalibrationError(f"{path}: not a text (YAML) file") from None
+    except OSError as exc:
+        raise CalibrationError(f"{path}: cannot read calibration file ({exc.strerror or exc})") from None
     except yaml.YAMLError as exc:
         raise CalibrationError(f"{path}: {yaml_problem(exc)}") from None
     if not isinstance(doc, dict):

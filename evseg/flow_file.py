@@ -29,6 +29,7 @@ Python.
 from __future__ import annotations
 
 import json
+import zipfile
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -49,8 +50,9 @@ def check_flow(data: Mapping, n_events: int | None = None, source: str = "precom
     these dtypes): ``index`` int64, ``nx``, ``ny`` (and ``uncertainty`` when given) float32.
 
     Raises ``error`` naming ``source``, the key and the value when a key is missing, an array
-    is not 1-D numbers, the lengths differ or an index is negative or (with ``n_events``) past
-    the recording's last event. Other keys are ignored.
+    is not 1-D numbers, the lengths differ, an index is negative, repeated or (with
+    ``n_events``) past the recording's last event, or an uncertainty is negative. Other keys
+    are ignored.
     """
     for key in FLOW_KEYS:
         if key not in data:
@@ -84,26 +86,80 @@ def check_flow(data: Mapping, n_events: int | None = None, source: str = "precom
     in_order = n < 2 or bool(np.all(index[1:] >= index[:-1]))
     order = slice(None) if in_order else np.argsort(index, kind="stable")
     out = {"index": index[order]}
+    twice = np.flatnonzero(out["index"][1:] == out["index"][:-1])
+    if len(twice):
+        raise error(f"{source}: key 'index' holds event {int(out['index'][twice[0]])} more than once "
+                    f"({len(twice)} repeated rows); one flow per event")
     for key in ("nx", "ny") + OPTIONAL_FLOW_KEYS:
         if key in arrays:
             out[key] = arrays[key][order].astype(np.float32, copy=False)
+    unc = out.get("uncertainty")
+    if unc is not None and len(unc) and bool(np.any(unc < 0)):
+        raise error(f"{source}: key 'uncertainty' has value {float(unc[np.flatnonzero(unc < 0)[0]])} < 0 "
+                    "(larger = less certain, 0 = certain)")
     return out
 
 
-def load_flow_file(path: str | Path, n_events: int | None = None) -> dict[str, np.ndarray]:
+def load_flow_file(path: str | Path, n_events: int | None = None,
+                   sensor_size: tuple[int, int] | None = None) -> dict[str, np.ndarray]:
     """Read a flow file (``.npz``, the layout of this module), checked (:func:`check_flow`,
     errors are :class:`~evseg.errors.FormatError` naming the file) and sorted by ``index``.
-    ``n_events``: the recording's event count, to check the indices against."""
+    ``n_events``: the recording's event count, to check the indices against.
+    ``sensor_size``: the recording's (width, height); a file that stores another one (a flow
+    of another recording or camera) is refused. Files without the key are not checked."""
     path = Path(path)
     try:
+        with open(path, "rb") as f:
+            head = f.read(6)
+    except OSError as exc:
+        raise FormatError(f"{path}: cannot read flow file ({exc.strerror or exc})") from None
+    if not head.startswith(b"PK\x03\x04") and not head.startswith(b"\x93NUMPY"):
+        raise FormatError(f"{path}: not an .npz archive (a flow file is one, with keys index, nx, ny"
+                          f"[, uncertainty]; the file starts with {head[:4]!r})")
+    try:
         loaded = np.load(path, allow_pickle=False)
-    except (OSError, ValueError, EOFError) as exc:
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
         raise FormatError(f"{path}: cannot read flow file ({exc})") from None
     if not isinstance(loaded, np.lib.npyio.NpzFile):  # a .npy file: one bare array
         raise FormatError(f"{path}: a flow file is an .npz archive with keys index, nx, ny[, uncertainty]")
-    with loaded as z:
-        data = {k: z[k] for k in z.files}
+    try:
+        with loaded as z:
+            data = {k: z[k] for k in z.files}
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:  # a member cut short
+        raise FormatError(f"{path}: cannot read flow file ({exc})") from None
+    if sensor_size is not None and "sensor_size" in data:
+        stored = np.asarray(data["sensor_size"]).ravel()
+        if stored.shape != (2,) or tuple(int(v) for v in stored) != tuple(int(v) for v in sensor_size):
+            raise FormatError(
+                f"{path}: key 'sensor_size' = {stored.tolist()} but the recording's sensor is "
+                f"{int(sensor_size[0])}x{int(sensor_size[1])} (flow of another recording?)")
     return check_flow(data, n_events, source=str(path), error=FormatError)
+
+
+def to_time_order(flow: dict[str, np.ndarray], input_order: np.ndarray | None,
+                  source: str = "precomputed flow") -> dict[str, np.ndarray]:
+    """A checked flow (:func:`check_flow`) whose ``index`` counts events in file order,
+    re-indexed for the same events sorted by time: ``input_order[i]`` is the file position of
+    the i-th event in time order (:attr:`evseg.io.Recording.input_order`; None: the file was
+    in time order, and ``flow`` is returned as it is). Rows are sorted by the new index; an
+    index past the recording raises :class:`~evseg.errors.FormatError` naming ``source``.
+
+    >>> flow = check_flow({"index": [0, 2], "nx": [1.0, 2.0], "ny": [0.0, 0.0]})
+    >>> moved = to_time_order(flow, np.array([2, 0, 1]))  # file event 2 comes first in time
+    >>> moved["index"].tolist(), moved["nx"].tolist()
+    ([0, 1], [2.0, 1.0])
+    """
+    if input_order is None:
+        return flow
+    position = np.empty(len(input_order), dtype=np.int64)
+    position[input_order] = np.arange(len(input_order), dtype=np.int64)
+    index = flow["index"]
+    if len(index) and index[-1] >= len(input_order):
+        raise FormatError(f"{source}: key 'index' has value {int(index[-1])} outside the "
+                          f"recording's {len(input_order)} events (flow of another recording?)")
+    moved = dict(flow)
+    moved["index"] = position[index]
+    return check_flow(moved)
 
 
 def save_flow_file(

@@ -78,6 +78,10 @@ class VideoSink:
         self._writer = None
         self._tmp: Path | None = None
         self._n = 0
+        if self.video is not None and self.video.suffix.lower() != ".mp4":
+            # OpenCV picks the container from the suffix and, for one it cannot write with
+            # mp4v, may write nothing without saying so.
+            raise EvsegError(f"{self.video}: the video must be an .mp4 file")
         if self.frames_dir is not None:
             self.frames_dir.mkdir(parents=True, exist_ok=True)
 
@@ -94,13 +98,17 @@ class VideoSink:
                     raise EvsegError(f"{self.video}: OpenCV cannot open an mp4 writer here")
             self._writer.write(frame)
         if self.frames_dir is not None:
-            cv2.imwrite(str(self.frames_dir / f"{self._n:06d}.png"), frame)
+            name = self.frames_dir / f"{self._n:06d}.png"
+            if not cv2.imwrite(str(name), frame):
+                raise EvsegError(f"{name}: OpenCV could not write the frame")
         self._n += 1
 
     def close(self) -> None:
         if self._writer is not None:
             self._writer.release()
             self._writer = None
+            if not self._tmp.is_file():
+                raise EvsegError(f"{self.video}: OpenCV wrote no video (is the mp4v codec available?)")
             self._tmp.replace(self.video)
 
     def __enter__(self) -> "VideoSink":

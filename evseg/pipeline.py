@@ -36,8 +36,8 @@ from typing import Callable, Iterable, Iterator, Protocol
 import numpy as np
 
 from evseg.calibration import Calibration
-from evseg.errors import ConfigError, EvsegError
-from evseg.events import EventStream
+from evseg.errors import ConfigError, EventDataError, EvsegError, FormatError
+from evseg.events import EVENT_DTYPE, EventStream
 from evseg.flow_file import WindowFlow, check_flow, load_flow_file, slice_flow  # noqa: F401 (load_flow_file: public here too)
 from evseg.tracking import ObjectTracker
 from evseg.undistortion import UndistortionTable, undistort_normal_flow
@@ -606,17 +606,24 @@ class MotionSegmentationPipeline:
     # ------------------------------------------------------------------ streams
     def run(
         self,
-        source: EventStream | Iterable[np.ndarray],
+        source: EventStream | np.ndarray | Iterable[np.ndarray],
         precomputed_flow: dict[str, np.ndarray] | None = None,
+        *,
+        flow_source: str = "precomputed_flow",
     ) -> Iterator[WindowResult]:
-        """Segment a whole stream (an EventStream or an iterable of sorted event chunks).
+        """Segment a whole stream: an EventStream, one event array (:data:`~evseg.events.EVENT_DTYPE`)
+        or an iterable of event chunks, each sorted by time and each starting no earlier than
+        the one before ended (else :class:`~evseg.errors.EventDataError` naming the chunk).
 
         ``precomputed_flow``: the arrays of an ``evseg flow`` file (``index`` into the whole
-        input, ``nx``, ``ny`` px/s, optional ``uncertainty``), sorted by ``index``.
+        input, ``nx``, ``ny`` px/s, optional ``uncertainty``), sorted by ``index``; an index
+        past the last event raises :class:`~evseg.errors.FormatError` naming ``flow_source``
+        once the stream has ended.
         """
         if precomputed_flow is not None:
-            precomputed_flow = check_flow(precomputed_flow, source="MotionSegmentationPipeline.run: precomputed_flow")
-        chunks = [source.events] if isinstance(source, EventStream) else source
+            precomputed_flow = check_flow(precomputed_flow, source=f"MotionSegmentationPipeline.run: {flow_source}")
+        seen = [0]
+        chunks = _checked_chunks(_as_chunks(source), seen)
         cfg = self.config
         needs_context = precomputed_flow is None and cfg.flow != "precomputed"
         history = EventHistory(self.kept_us if needs_context else 0)
@@ -631,6 +638,10 @@ class MotionSegmentationPipeline:
             result = self.process(window, flow, context=history.before(window))
             history.add(window)
             yield result
+        index = None if precomputed_flow is None else precomputed_flow["index"]
+        if index is not None and len(index) and index[-1] >= seen[0]:
+            raise FormatError(f"{flow_source}: key 'index' refers to event {int(index[-1])} but the stream "
+                              f"has {seen[0]} events (flow of another recording?)")
 
     def _run_overlapped(self, windows: Iterator[Window], history: EventHistory) -> Iterator[WindowResult]:
         """:meth:`run` with the flow of window t + 1 estimated by the worker (thread or process)
@@ -799,3 +810,48 @@ def _merge_flows(targets: np.ndarray, inside: np.ndarray, rest, tracked):
     for part, where in ((rest, ~inside), (tracked, inside)):
         nx[where], ny[where], unc[where] = part.nx, part.ny, part.uncertainty
     return NormalFlow(targets, nx, ny, unc)
+
+
+def _as_chunks(source) -> Iterable[np.ndarray]:
+    """What :meth:`MotionSegmentationPipeline.run` accepts, as an iterable of chunks."""
+    if isinstance(source, EventStream):
+        return [source.events]
+    if isinstance(source, np.ndarray):
+        if source.dtype == EVENT_DTYPE:
+            return [source]
+        raise EventDataError(
+            f"MotionSegmentationPipeline.run: an array of dtype {source.dtype} is not events; pass an "
+            f"array of dtype {EVENT_DTYPE} (evseg.events.make_events(x, y, t, p) makes one), an "
+            "EventStream, or an iterable of such arrays")
+    if isinstance(source, (str, bytes)) or not hasattr(source, "__iter__"):
+        raise EventDataError(
+            f"MotionSegmentationPipeline.run: expected an EventStream, an event array or an iterable "
+            f"of event arrays, got {type(source).__name__} (a file: evseg.io.open_recording(path).chunks())")
+    return source
+
+
+def _checked_chunks(chunks: Iterable[np.ndarray], seen: list[int]) -> Iterator[np.ndarray]:
+    """``chunks`` as they are, after checking that each is events sorted by time and that none
+    starts before the previous one ended (a chunk out of order would be dropped unseen by
+    the windowing); counts the events in ``seen[0]``."""
+    last_t = None
+    for i, chunk in enumerate(chunks):
+        if not isinstance(chunk, np.ndarray) or chunk.dtype != EVENT_DTYPE:
+            got = f"dtype {chunk.dtype}" if isinstance(chunk, np.ndarray) else type(chunk).__name__
+            raise EventDataError(f"MotionSegmentationPipeline.run: chunk {i} must be an event array of dtype "
+                                 f"{EVENT_DTYPE} (evseg.events.make_events(x, y, t, p) makes one), got {got}")
+        if len(chunk) == 0:
+            continue
+        t = chunk["t"]
+        if len(t) > 1 and bool(np.any(t[1:] < t[:-1])):
+            at = int(np.flatnonzero(t[1:] < t[:-1])[0])
+            raise EventDataError(f"MotionSegmentationPipeline.run: chunk {i}: field 't' goes back in time at "
+                                 f"event {at + 1} ({int(t[at])} -> {int(t[at + 1])} us); sort the events first")
+        if last_t is not None and int(t[0]) < last_t:
+            raise EventDataError(f"MotionSegmentationPipeline.run: chunk {i} starts at t={int(t[0])} us, before "
+                                 f"the previous chunk's last event at t={last_t} us; chunks must follow each "
+                                 "other in time")
+        last_t = int(t[-1])
+        seen[0] += len(chunk)
+        yield chunk
+

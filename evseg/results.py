@@ -16,6 +16,7 @@ key                 dtype, shape    meaning
 ``sensor_size``     int64 (2,)      (width, height)
 ``partial``         bool ()         True when the run stopped early (error, Ctrl-C): only
                                     events up to ``n_events_processed`` carry labels
+                                    (with ``--sort``: the first ones in time order)
 ``n_events_processed`` int64 ()     events covered by processed windows
 ``config``          str ()          the effective configuration, as YAML
 ==================  ==============  =====================================================
@@ -97,6 +98,13 @@ class ResultWriter:
         self._boxes = array("q")  # 6 values per box
         self._n_masks = 0
         self._closed = False
+        self._input_order: np.ndarray | None = None
+
+    def set_input_order(self, order: np.ndarray | None) -> None:
+        """Labels arrive in another order than the file's (a sorted copy of an unsorted file):
+        ``order[i]`` is the file position of the i-th event labelled. :meth:`close` writes
+        ``label`` in file order; events never labelled get -1."""
+        self._input_order = None if order is None else np.asarray(order, dtype=np.int64)
 
     def add_labels(self, labels: np.ndarray) -> None:
         """Append labels for the next ``len(labels)`` events of the input."""
@@ -136,8 +144,12 @@ class ResultWriter:
         n_done = self.n_written
         if self.n_events is not None:
             self.add_unassigned(self.n_events - self.n_written)
+        if self._input_order is not None:
+            self.add_unassigned(len(self._input_order) - self.n_written)
         n_total = self.n_written
         self._label_file.close()
+        if self._input_order is not None:
+            self._restore_input_order(n_total)
         if self._mask_file is not None:
             self._mask_file.close()
         try:
@@ -163,6 +175,16 @@ class ResultWriter:
         finally:
             self._drop_temporaries()
         return self.path
+
+    def _restore_input_order(self, n_total: int) -> None:
+        # Only with --sort, which holds the whole recording in memory anyway: the labels fit too.
+        order = self._input_order
+        if len(order) != n_total:
+            raise ValueError(f"input order has {len(order)} events, {n_total} were labelled")
+        labels = np.fromfile(self._label_path, dtype=LABEL_DTYPE, count=n_total)
+        in_file_order = np.empty_like(labels)
+        in_file_order[order] = labels
+        in_file_order.tofile(self._label_path)
 
     def abort(self) -> None:
         """Drop temporary files without writing anything (nothing already on disk is touched)."""
@@ -201,6 +223,7 @@ def _write_npy_from_file(zf: zipfile.ZipFile, key: str, src: Path, dtype: np.dty
 def load_result(path: str | Path) -> SegmentationOutput:
     """Read a ``result.npz`` written by :class:`ResultWriter`."""
     path = Path(path)
+    _check_zip_magic(path, "segmentation result")
     try:
         with np.load(path, allow_pickle=False) as z:
             missing = {"label", "window_t0_us", "window_t1_us", "boxes", "sensor_size"} - set(z.files)
@@ -219,3 +242,15 @@ def load_result(path: str | Path) -> SegmentationOutput:
             )
     except (OSError, ValueError, zipfile.BadZipFile) as exc:
         raise FormatError(f"{path}: cannot read segmentation result ({exc})") from None
+
+
+def _check_zip_magic(path: Path, what: str) -> None:
+    """An .npz is a zip archive: say so, rather than numpy's "pickled data" message, when a
+    file of another kind (HDF5, a recording) is given."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(4)
+    except OSError as exc:
+        raise FormatError(f"{path}: cannot read {what} ({exc.strerror or exc})") from None
+    if head != b"PK\x03\x04":
+        raise FormatError(f"{path}: not an .npz archive (a {what} is one; the file starts with {head!r})")

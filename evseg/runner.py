@@ -7,13 +7,15 @@ videos); the pipeline itself (:mod:`evseg.pipeline`) only returns values.
 from __future__ import annotations
 
 import contextlib
+import itertools
+import math
 import time
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
-from evseg.errors import CalibrationError, ConfigError, FormatError
+from evseg.errors import CalibrationError, ConfigError
 
 
 @dataclass(frozen=True)
@@ -65,10 +67,15 @@ def build_pipeline_config(job: SegmentJob):
     from evseg.pipeline import PipelineConfig
     from evseg.segmentation import SegmentationConfig, load_segmentation_config
 
-    if job.window_ms <= 0:
-        raise ConfigError(f"--window-ms must be positive, got {job.window_ms}")
-    if not job.flow_context_ms >= 0:
-        raise ConfigError(f"--flow-context-ms must be >= 0, got {job.flow_context_ms}")
+    if not (math.isfinite(job.window_ms) and job.window_ms > 0):
+        raise ConfigError(f"--window-ms must be a positive number, got {job.window_ms}")
+    if job.stride_ms is not None and not (math.isfinite(job.stride_ms) and job.stride_ms > 0):
+        raise ConfigError(f"--stride-ms must be a positive number, got {job.stride_ms}")
+    if not (math.isfinite(job.flow_context_ms) and job.flow_context_ms >= 0):
+        raise ConfigError(f"--flow-context-ms must be a number >= 0, got {job.flow_context_ms}")
+    if job.threads is not None and job.threads < 1:
+        raise ConfigError(f"--threads must be at least 1, got {job.threads}")
+    _check_flow_options(job)
     if job.min_track_windows < 1:
         raise ConfigError(f"--min-track-windows must be >= 1, got {job.min_track_windows}")
     if job.tracked_max_targets is not None and job.tracked_max_targets < 0:
@@ -106,6 +113,39 @@ def build_pipeline_config(job: SegmentJob):
         tracked_max_targets=job.tracked_max_targets,
         segmentation=seg,
     )
+
+
+def _check_flow_options(job: SegmentJob) -> None:
+    """Options of the learned flow make no sense with another flow: refuse them rather than
+    run without them and record them in the result's configuration as if they had acted."""
+    learned_only = [("--model", job.model is not None), ("--mirrors", job.mirrors != 1),
+                    ("--tracked-mirrors", job.tracked_mirrors != 1), ("--slow-edges", job.slow_edges),
+                    ("--no-fast-edges", not job.fast_edges),
+                    ("--tracked-max-targets", job.tracked_max_targets is not None)]
+    given = [name for name, on in learned_only if on]
+    if job.flow_file is not None and (given or job.flow_method != "learned"):
+        other = given[0] if given else "--flow-method"
+        raise ConfigError(f"--flow and {other} exclude each other: {other} is about the normal flow evseg "
+                          "estimates, and --flow brings its own")
+    if job.flow_method == "planefit" and given:
+        raise ConfigError(f"--flow-method planefit and {given[0]} exclude each other: {given[0]} is about the "
+                          "learned flow")
+    if job.tracked_max_targets is not None and job.tracked_mirrors == 1:
+        raise ConfigError("--tracked-max-targets bounds the targets of --tracked-mirrors: give --tracked-mirrors "
+                          "2, 4 or 8 too")
+
+
+def check_job_outputs(job: SegmentJob) -> None:
+    """Refuse, before any work, outputs that cannot be written or would replace an input."""
+    from evseg.io.output_paths import check_output_folder, check_output_path
+
+    inputs = [("the recording", job.recording), ("the flow file (--flow)", job.flow_file),
+              ("the calibration (--calib)", job.calib), ("the model (--model)", job.model)]
+    check_output_path(job.out, "--out", (".npz",), inputs)
+    if job.video is not None:
+        check_output_path(job.video, "--video", (".mp4",), inputs)
+    if job.frames is not None:
+        check_output_folder(job.frames, "--frames")
 
 
 def config_yaml(config) -> str:
@@ -159,12 +199,14 @@ def run_segment_job(job: SegmentJob) -> str:
     from evseg.io import open_recording
     from evseg.io.recording import parse_sensor_size
     from evseg.overlay import VideoSink, label_overlay
+    from evseg.flow_file import to_time_order
     from evseg.pipeline import MotionSegmentationPipeline, load_flow_file
     from evseg.results import ResultWriter
 
     cfg = build_pipeline_config(job)  # config errors surface before any work
     if job.calib_camera is not None and job.calib is None:
         raise ConfigError(f"--calib-camera {job.calib_camera} names a camera of a calibration file: give --calib too")
+    check_job_outputs(job)
     calibration = load_calibration(job.calib, job.calib_camera) if job.calib is not None else None
     sensor_size = parse_sensor_size(job.sensor_size) if isinstance(job.sensor_size, str) else job.sensor_size
     with open_recording(job.recording, format=job.format, topic=job.topic, sensor_size=sensor_size,
@@ -187,7 +229,8 @@ def run_segment_job(job: SegmentJob) -> str:
                 f"{calibration.sensor_size[0]}x{calibration.sensor_size[1]} do not match the sensor "
                 f"{rec.sensor_size[0]}x{rec.sensor_size[1]} of {job.recording}"
             )
-        flow = load_flow_file(job.flow_file) if job.flow_file is not None else None
+        flow = (load_flow_file(job.flow_file, sensor_size=rec.sensor_size)
+                if job.flow_file is not None else None)
         span = rec.time_span_us()
         if job.worker == "auto" and span is not None and span[1] - span[0] < AUTO_PROCESS_MIN_US:
             cfg = replace(cfg, worker="thread")  # too short to earn the process's start-up back
@@ -199,8 +242,8 @@ def run_segment_job(job: SegmentJob) -> str:
         ids: set[int] = set()
         writer = ResultWriter(job.out, None, rec.sensor_size, config_yaml(cfg), with_masks=job.masks)
         origin = span[0] if span is not None else None  # bar zero: first event, else first window
-        with pipe, _closing(writer, lambda: n_windows > 0), \
-                VideoSink(job.video, job.frames) as sink, \
+        # The video closes after the result: a video that fails to finish costs no labels.
+        with pipe, VideoSink(job.video, job.frames) as sink, _closing(writer, lambda: n_windows > 0), \
                 tqdm(**_progress_bar_kwargs(span), disable=not job.progress) as bar:
             seen = [0]
 
@@ -209,6 +252,16 @@ def run_segment_job(job: SegmentJob) -> str:
                     seen[0] += len(c)
                     yield c
 
+            chunks = counted(rec.chunks())
+            if job.sort:
+                # The sorted copy is made when the first chunk is asked for; the labels go back
+                # to file order at the end, and a flow file counts events in file order too.
+                first = next(chunks, None)
+                writer.set_input_order(rec.input_order)
+                if flow is not None:
+                    flow = to_time_order(flow, rec.input_order, source=str(job.flow_file))
+                chunks = itertools.chain([] if first is None else [first], chunks)
+
             latencies: list[float] = []
             dropped = [0]
             if job.realtime:
@@ -216,11 +269,11 @@ def run_segment_job(job: SegmentJob) -> str:
 
                 pipe.warm_up()  # the first window must not pay the one-time set-up
                 t_wall = time.perf_counter()
-                live = run_live(pipe, replay(counted(rec.chunks()), speed=job.speed),
+                live = run_live(pipe, replay(chunks, speed=job.speed),
                                 max_lag_us=int(round(job.max_lag_ms * 1000)))
                 results = _live_windows(live, latencies, dropped)
             else:
-                results = pipe.run(counted(rec.chunks()), precomputed_flow=flow)
+                results = pipe.run(chunks, precomputed_flow=flow, flow_source=str(job.flow_file))
             for res in results:
                 # Events before this window and not in any earlier one (gaps when stride > window).
                 if res.first_event > writer.n_written:
@@ -243,11 +296,6 @@ def run_segment_job(job: SegmentJob) -> str:
                     origin = res.t0_us
                 _advance(bar, res.t1_us if span is None else min(res.t1_us, span[1]), origin, n_windows)
             writer.add_unassigned(seen[0] - writer.n_written)  # events after the last window
-            if flow is not None and len(flow["index"]) and flow["index"][-1] >= writer.n_written:
-                raise FormatError(
-                    f"{job.flow_file}: key 'index' refers to event {int(flow['index'][-1])} but "
-                    f"{job.recording} has {writer.n_written} events (flow of another recording?)"
-                )
     wall = time.perf_counter() - t_wall
     speed = ""
     if t_first is not None and wall > 0:

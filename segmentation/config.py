@@ -20,6 +20,7 @@ rejects unknown keys with :class:`evseg.errors.ConfigError`.
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -296,6 +297,13 @@ class SegmentationConfig:
     """propagate_labels gives -1 to points farther than this (px) from every node."""
 
     def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            # NaN passes every comparison below, then poisons the energy; inf has no meaning
+            # in any field but the two limits.
+            if isinstance(value, float) and not math.isfinite(value) and not (
+                    value == math.inf and f.name in ("max_uncertainty", "max_propagation_px")):
+                raise ConfigError(f"SegmentationConfig.{f.name} must be a finite number, got {value}")
         _check_choice("robust_loss", self.robust_loss, ROBUST_LOSSES)
         _check_choice("mask_method", self.mask_method, MASK_METHODS)
         _check_choice("potts_weighting", self.potts_weighting, POTTS_WEIGHTINGS)
@@ -326,6 +334,8 @@ class SegmentationConfig:
             raise ConfigError(f"SegmentationConfig.max_nodes must be a positive integer or None, got {self.max_nodes!r}")
         if self.origin_px is not None:
             object.__setattr__(self, "origin_px", tuple(float(v) for v in self.origin_px))
+            if not all(math.isfinite(v) for v in self.origin_px):
+                raise ConfigError(f"SegmentationConfig.origin_px must be finite [column, row] px, got {self.origin_px}")
 
 
 def _check_choice(name: str, value: str, choices: tuple[str, ...]) -> None:
@@ -428,6 +438,10 @@ def load_segmentation_config(name_or_path: str | Path) -> SegmentationConfig:
         raise ConfigError(f"segmentation config file not found: {path}")
     try:
         data = yaml.safe_load(path.read_text())
+    except UnicodeDecodeError:
+        raise ConfigError(f"{path}: not a text (YAML) file") from None
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read segmentation config ({exc.strerror or exc})") from None
     except yaml.YAMLError as exc:
         raise ConfigError(f"{path}: {yaml_problem(exc)}") from None
     return config_from_dict({} if data is None else data, source=str(path))

@@ -64,8 +64,22 @@ def test_load_names_the_file_and_checks_the_recording_length(tmp_path):
     with pytest.raises(FormatError, match=r"an .npz archive with keys index, nx, ny"):
         load_flow_file(npy)
     (tmp_path / "junk.npz").write_bytes(b"not a zip")
-    with pytest.raises(FormatError, match=r"cannot read flow file"):
+    with pytest.raises(FormatError, match=r"junk.npz: not an .npz archive .* starts with b'not '"):
         load_flow_file(tmp_path / "junk.npz")
+    (tmp_path / "cut.npz").write_bytes(path.read_bytes()[:40])  # a zip cut short
+    with pytest.raises(FormatError, match=r"cut.npz: cannot read flow file"):
+        load_flow_file(tmp_path / "cut.npz")
+    h5 = tmp_path / "events.h5"
+    h5.write_bytes(b"\x89HDF\r\n\x1a\n" + bytes(64))
+    with pytest.raises(FormatError, match=r"events.h5: not an .npz archive"):
+        load_flow_file(h5)
+
+
+def test_a_negative_uncertainty_and_a_repeated_event_are_refused():
+    with pytest.raises(EvsegError, match=r"key 'uncertainty' has value -0.5 < 0"):
+        check_flow({"index": [0, 1], "nx": [1.0, 1.0], "ny": [0.0, 0.0], "uncertainty": [0.1, -0.5]})
+    with pytest.raises(EvsegError, match=r"key 'index' holds event 3 more than once \(1 repeated rows\)"):
+        check_flow({"index": [3, 0, 3], "nx": [1.0, 1.0, 2.0], "ny": [0.0, 0.0, 0.0]})
 
 
 def test_slice_flow_reindexes_one_window():

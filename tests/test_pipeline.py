@@ -79,7 +79,7 @@ def test_bad_flow_file_and_config_fail_before_work(sim, tmp_path, capsys):
     np.savez(bad, index=np.array([0, 10**9]), nx=np.zeros(2), ny=np.zeros(2))
     assert main(["segment", str(d / "sim.npz"), "--flow", str(bad), "--out", str(tmp_path / "r.npz")]) == 2
     err = capsys.readouterr().err
-    assert f"key 'index' refers to event 1000000000 but {d / 'sim.npz'} has {len(rec.stream)} events" in err
+    assert f"{bad}: key 'index' refers to event 1000000000 but the stream has {len(rec.stream)} events" in err
     assert load_result(tmp_path / "r.npz").partial  # the windows done are kept, flagged partial
     with pytest.raises(ConfigError, match="pipeline.flow"):
         PipelineConfig(flow="magic")
@@ -743,3 +743,34 @@ def test_evaluate_recording_counts_each_truth_objects_own_events(sim):
     s = summarize(ev.scores)
     assert s.detection_rate + s.missed_not_found + s.missed_too_small + s.missed_spills_out == pytest.approx(1.0)
     assert 0.0 <= s.sparse_share <= 1.0
+
+
+def test_run_checks_what_it_is_given(sim):
+    from evseg.errors import EventDataError, FormatError
+
+    rec, d = sim
+    ev = rec.stream.events
+    flow = load_flow_file(d / "flow.npz")
+
+    def pipe():
+        return MotionSegmentationPipeline(PipelineConfig(flow="precomputed"), sensor_size=rec.stream.sensor_size)
+
+    # One event array is a stream of one chunk: the same windows as the EventStream.
+    as_array = list(pipe().run(ev, precomputed_flow=flow))
+    assert [r.labels.tolist() for r in as_array] == [r.labels.tolist() for r in _run(rec, flow)]
+    # Chunks out of time order would be dropped unseen by the windowing: refused.
+    half = len(ev) // 2
+    with pytest.raises(EventDataError, match=r"chunk 1 starts at t=\d+ us, before the previous chunk's last event"):
+        list(pipe().run([ev[half:], ev[:half]], precomputed_flow=flow))
+    back = ev.copy()
+    back["t"][100] = back["t"][99] - 1
+    with pytest.raises(EventDataError, match=r"chunk 0: field 't' goes back in time at event 100"):
+        list(pipe().run([back], precomputed_flow=flow))
+    with pytest.raises(EventDataError, match=r"an array of dtype float64 is not events"):
+        list(pipe().run(np.zeros((10, 4)), precomputed_flow=flow))
+    with pytest.raises(EventDataError, match=r"chunk 0 must be an event array .* got dtype float64"):
+        list(pipe().run([np.zeros((10, 4))], precomputed_flow=flow))
+    # A flow index past the last event: refused once the stream has ended, naming the flow.
+    shifted = dict(flow, index=flow["index"] + len(ev) // 4)
+    with pytest.raises(FormatError, match=rf"my_flow: key 'index' refers to event \d+ but the stream has {len(ev)} events"):
+        list(pipe().run(rec.stream, precomputed_flow=shifted, flow_source="my_flow"))

@@ -60,3 +60,29 @@ def test_unknown_length_stream_and_gap_fill(tmp_path):
         w.add_unassigned(3)
         w.add_labels([1])
     assert load_result(path).label.tolist() == [0, -1, -1, -1, 1]
+
+
+def test_load_names_a_file_that_is_no_npz(tmp_path):
+    h5 = tmp_path / "events.h5"
+    h5.write_bytes(b"\x89HDF\r\n\x1a\n" + bytes(64))
+    with pytest.raises(FormatError, match=r"events.h5: not an .npz archive \(a segmentation result is one"):
+        load_result(h5)
+
+
+def test_labels_of_a_sorted_copy_go_back_to_file_order(tmp_path):
+    # File events 0..4 came in time order 3, 0, 4, 1, 2 (input_order): labels arrive in that order.
+    path = tmp_path / "r.npz"
+    with ResultWriter(path, n_events=None, sensor_size=(2, 2)) as w:
+        w.set_input_order(np.array([3, 0, 4, 1, 2]))
+        w.add_labels([30, 0, 40, 10, 20])
+        w.add_window(0, 10, {})
+    assert load_result(path).label.tolist() == [0, 10, 20, 30, 40]
+    # Interrupted after 2 events: the first two in time order are labelled, the rest -1.
+    with pytest.raises(KeyboardInterrupt):
+        with ResultWriter(path, n_events=None, sensor_size=(2, 2)) as w:
+            w.set_input_order(np.array([3, 0, 4, 1, 2]))
+            w.add_labels([30, 0])
+            w.add_window(0, 10, {})
+            raise KeyboardInterrupt
+    r = load_result(path)
+    assert r.partial and r.label.tolist() == [0, -1, -1, 30, -1]

@@ -24,6 +24,7 @@ video (one frame per slice, hue = direction, brightness = speed up to ``--max-px
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from pathlib import Path
@@ -59,7 +60,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-px-s", type=float, default=None,
                    help="flow speed shown at full brightness in the video (default: 95th percentile)")
     p.add_argument("--format", default=None, help="override format detection")
+    p.add_argument("--topic", default=None, help="ROS bag topic of the event messages (default: the only one)")
     p.add_argument("--sensor-size", default=None, help="WIDTHxHEIGHT when the file has none")
+    p.add_argument("--sort", action="store_true",
+                   help="sort events by time first (loads the whole recording; for files whose time goes "
+                        "back); 'index' still counts events in file order")
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
 
 
@@ -100,10 +105,12 @@ def run(args: argparse.Namespace) -> int:
     from evseg.veckm_flow.context import flow_with_context, history_span_us, split_history
     from evseg.windows import EventHistory, stream_time_windows
 
-    if args.window_ms <= 0:
-        raise EvsegError(f"--window-ms must be positive, got {args.window_ms}")
-    if not args.context_ms >= 0:
-        raise EvsegError(f"--context-ms must be >= 0, got {args.context_ms}")
+    if not (math.isfinite(args.window_ms) and args.window_ms > 0):
+        raise EvsegError(f"--window-ms must be a positive number, got {args.window_ms}")
+    if not (math.isfinite(args.context_ms) and args.context_ms >= 0):
+        raise EvsegError(f"--context-ms must be a number >= 0, got {args.context_ms}")
+    if args.threads is not None and args.threads < 1:
+        raise EvsegError(f"--threads must be at least 1, got {args.threads}")
     if args.cell_px < 1:
         raise EvsegError(f"--cell-px must be at least 1, got {args.cell_px}")
     if args.calib_camera is not None and args.calib is None:
@@ -116,12 +123,20 @@ def run(args: argparse.Namespace) -> int:
             raise EvsegError(
                 f"--window-ms plus --context-ms must be at most {MAX_SLICE_SPAN_US / 1000:.0f} ms "
                 f"(the learned flow's longest slice), got {args.window_ms} + {args.context_ms}")
+    from evseg.io.output_paths import check_output_path
+
+    inputs = [("the recording", args.recording), ("the calibration (--calib)", args.calib),
+              ("the model (--model)", args.model)]
+    check_output_path(args.out, "--out", (".npz",), inputs)
+    if args.video is not None:
+        check_output_path(args.video, "--video", (".mp4",), inputs)
     est, info = _estimator(args)
     sensor = parse_sensor_size(args.sensor_size) if args.sensor_size else None
     t_start = time.perf_counter()
     parts: list[NormalFlow] = []
     frames: list[tuple[np.ndarray, NormalFlow]] = []
-    with open_recording(args.recording, format=args.format, sensor_size=sensor) as rec:
+    with open_recording(args.recording, format=args.format, topic=args.topic, sensor_size=sensor,
+                        sort=args.sort) as rec:
         if rec.sensor_size is None:
             # Unknown sensor size: infer it from the whole file first (one extra pass).
             for _ in rec.chunks():
@@ -161,15 +176,17 @@ def run(args: argparse.Namespace) -> int:
             parts.append(flow.shifted(win.first_event))
             if args.video is not None:
                 frames.append((ev[flow.index], flow))
+        input_order = rec.input_order  # set by a sorting read; None: file order is time order
     flow = NormalFlow.concatenate(parts)
+    index = flow.index if input_order is None else input_order[flow.index]  # file positions
     elapsed = time.perf_counter() - t_start
     info.update(
         {"recording": str(args.recording), "window_us": window_us,
-         "context_us": context_us, "history_us": history_us, "targets": args.targets,
+         "context_us": context_us, "history_us": history_us, "targets": args.targets, "sorted": args.sort,
          "cell_px": args.cell_px if args.targets == "cell" else None,
          "calibration": str(args.calib) if args.calib else ("file" if calibration is not None else None)}
     )
-    save_flow_file(args.out, flow.index, flow.nx, flow.ny, flow.uncertainty, sensor_size=sensor_size,
+    save_flow_file(args.out, index, flow.nx, flow.ny, flow.uncertainty, sensor_size=sensor_size,
                    window_us=window_us, method=info["method"], config=info)
     if args.video is not None:
         cell = args.cell_px if args.targets == "cell" else 1

@@ -75,9 +75,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="replay the recording at the sensor's pace as a live camera would send it, and drop "
                         "windows when the pipeline falls behind (their events are labelled -1); reports "
                         "the windows dropped and the latency of the labels (evseg.live)")
-    p.add_argument("--speed", type=float, default=1.0,
+    p.add_argument("--speed", type=float, default=None,
                    help="with --realtime: replay this many times faster than recorded (default 1)")
-    p.add_argument("--max-lag-ms", type=float, default=20.0,
+    p.add_argument("--max-lag-ms", type=float, default=None,
                    help="with --realtime: windows that end more than this (ms) before the newest event are "
                         "dropped to catch up (default 20)")
     p.add_argument("--masks", action="store_true", help="also store dense object masks in the result")
@@ -87,7 +87,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from evseg.errors import ConfigError
     from evseg.runner import SegmentJob, run_segment_job
+
+    for option, value in (("--speed", args.speed), ("--max-lag-ms", args.max_lag_ms)):
+        if value is not None and not args.realtime:
+            raise ConfigError(f"{option} sets the replay of --realtime: give --realtime too")
 
     job = SegmentJob(
         recording=args.recording,
@@ -115,8 +120,8 @@ def run(args: argparse.Namespace) -> int:
         tracked_mirrors=args.tracked_mirrors,
         tracked_max_targets=args.tracked_max_targets,
         realtime=args.realtime,
-        speed=args.speed,
-        max_lag_ms=args.max_lag_ms,
+        speed=1.0 if args.speed is None else args.speed,
+        max_lag_ms=20.0 if args.max_lag_ms is None else args.max_lag_ms,
         masks=args.masks,
         video=args.video,
         frames=args.frames,

@@ -110,6 +110,11 @@ class Recording:
         self.calibration = source.calibration
         self.topic: str | None = getattr(source, "topic", None)
         self.message_type: str | None = getattr(source, "msgtype", None)
+        self.input_order: np.ndarray | None = None
+        """With ``sort=True``, once :meth:`chunks` has started: for each event in the order
+        :meth:`chunks` yields them, its position in the file (int64), so that per-event
+        results can be put back in file order (``out[input_order] = results``). None when
+        the file was already in time order (the positions are then the same)."""
 
     def __enter__(self) -> "Recording":
         return self
@@ -203,8 +208,12 @@ class Recording:
             yield from self._raw_checked(check_sorted=True)
             return
         allev = _concat(list(self._raw_checked(check_sorted=False)))
-        order = np.argsort(allev["t"], kind="stable")
-        allev = allev[order]
+        t = allev["t"]
+        self.input_order = None
+        if len(t) > 1 and bool(np.any(t[1:] < t[:-1])):
+            order = np.argsort(t, kind="stable")
+            allev = allev[order]
+            self.input_order = order.astype(np.int64, copy=False)
         for i in range(0, len(allev), self._chunk_events):
             yield allev[i : i + self._chunk_events]
 

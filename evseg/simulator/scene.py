@@ -371,6 +371,8 @@ def load_scene_file(path: str | Path) -> SceneConfig:
     path = Path(path)
     try:
         text = path.read_text()
+    except UnicodeDecodeError:
+        raise ConfigError(f"{path}: not a text (YAML) file") from None
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read scene config ({exc.strerror})") from None
     try:

@@ -153,3 +153,16 @@ def test_directories_that_are_not_ros2_bags(tmp_path):
     with pytest.raises(FormatError, match=r"x.mcap: not a valid rosbag2 file: bad magic bytes at offset 0 "
                                           r"\(expected b'SQLite format 3\\x00' or b'\\x89MCAP0\\r\\n'"):
         read_events(f)
+
+
+def test_evseg_flow_reads_a_chosen_topic(tmp_path, capsys):
+    from evseg.cli import main
+
+    a, b = sample_events(300, seed=4), sample_events(200, seed=5)
+    p = tmp_path / "two.bag"
+    write_bag(p, {"/left/events": [a], "/right/events": [b]})
+    out = tmp_path / "f.npz"
+    assert main(["flow", str(p), "--baseline", "--out", str(out), "--no-progress"]) == 2
+    assert "choose one with --topic" in capsys.readouterr().err
+    assert main(["flow", str(p), "--baseline", "--topic", "/right/events", "--out", str(out), "--no-progress"]) == 0
+    assert "for 200 events" in capsys.readouterr().out

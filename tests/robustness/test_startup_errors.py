@@ -160,6 +160,8 @@ CONFIGS = {
     "out of range": ("truncation: -1\n", "truncation"),
     "bad choice": ("robust_loss: l1\n", "robust_loss"),
     "null": ("cell_px: null\n", "cell_px"),
+    "NaN": ("lambda_m: .nan\n", "lambda_m must be a finite number, got nan"),
+    "infinite": ("lambda_p: .inf\n", "lambda_p must be a finite number, got inf"),
     "a list": ("- 1\n- 2\n", "mapping"),
 }
 
@@ -188,7 +190,7 @@ def test_broken_yaml_segmentation_config_is_one_line(tmp_path, capsys, sim_files
 
 
 @pytest.mark.parametrize("extra, field", [(["--window-ms", "0"], "--window-ms"),
-                                          (["--stride-ms", "-5"], "stride_us"),
+                                          (["--stride-ms", "-5"], "--stride-ms"),
                                           (["--sensor-size", "12xx"], "12xx"),
                                           (["--flow-context-ms", "-1"], "--flow-context-ms"),
                                           (["--flow-context-ms", "nan"], "--flow-context-ms")])
@@ -235,3 +237,11 @@ def test_unknown_scene_preset(tmp_path, capsys):
         load_scene_preset("nope")
     rc = main(["simulate", "--preset", "nope", "--out", str(tmp_path / "s.npz"), "--quiet"])
     assert rc == 2 and "nope" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("option", ["--config", "--calib"])
+def test_a_binary_file_given_as_yaml(option, tmp_path, capsys, sim_files):
+    _, recording, _ = sim_files
+    binary = tmp_path / "seg.mp4.yaml"
+    binary.write_bytes(bytes(range(128, 256)) * 4)
+    _segment_fails_cleanly(capsys, tmp_path, recording, [option, str(binary)], [str(binary), "not a text (YAML) file"])

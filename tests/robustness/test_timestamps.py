@@ -53,17 +53,28 @@ def test_ten_second_gap_gives_empty_windows_and_all_labels(tmp_path, capsys):
     assert len(r.label) == len(ev) and (r.label == 0).all()  # one translation: background
 
 
-def test_all_events_at_one_timestamp_and_duplicate_flow_rows(tmp_path, capsys):
+def test_all_events_at_one_timestamp(tmp_path, capsys):
     ev = random_events(500, SIZE, seed=3)
     ev["t"] = 123_456
     rec = write_npz(EventStream(ev, SIZE), tmp_path / "same_t.npz")
-    index = np.sort(np.concatenate([np.arange(len(ev)), np.arange(0, len(ev), 7)]))  # some rows twice
-    flow = _translation_flow_file(tmp_path / "flow.npz", len(ev), index)
+    flow = _translation_flow_file(tmp_path / "flow.npz", len(ev), np.arange(len(ev)))
     rc, err = _segment(capsys, rec, tmp_path / "r.npz", "--flow", str(flow))
     assert rc == 0, err
     r = load_result(tmp_path / "r.npz")
     assert r.window_t0_us.tolist() == [123_456] and len(r.label) == len(ev)
     assert set(np.unique(r.label).tolist()) <= {-1, 0}
+
+
+def test_duplicate_flow_rows_are_refused_before_work(tmp_path, capsys):
+    # Two flows for one event: which one counts would be arbitrary, so the file is refused.
+    ev = random_events(500, SIZE, seed=3)
+    rec = write_npz(EventStream(ev, SIZE), tmp_path / "rec.npz")
+    index = np.sort(np.concatenate([np.arange(len(ev)), np.arange(0, len(ev), 7)]))  # some rows twice
+    flow = _translation_flow_file(tmp_path / "flow.npz", len(ev), index)
+    rc, err = _segment(capsys, rec, tmp_path / "r.npz", "--flow", str(flow))
+    assert rc == 2
+    assert f"{flow}: key 'index' holds event 0 more than once (72 repeated rows)" in err[0]
+    assert not (tmp_path / "r.npz").exists()
 
 
 def _bad_file(tmp_path: Path, case: str) -> tuple[Path, list[str]]:

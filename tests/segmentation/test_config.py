@@ -110,3 +110,14 @@ def test_angular_uncertainty_gain_is_set_where_it_was_validated():
     assert evimo.uncertainty_angle_gain == evimo.uncertainty_gain == 1.25
     with pytest.raises(ConfigError, match=r"uncertainty_angle_gain must be >= 0, got -0.5"):
         SegmentationConfig(uncertainty_angle_gain=-0.5)
+
+
+@pytest.mark.parametrize("field, value", [("lambda_m", float("nan")), ("truncation", float("nan")),
+                                          ("residual_scale_noise", float("inf")), ("cell_px", float("-inf"))])
+def test_numbers_must_be_finite(field, value):
+    # NaN passes every range check (all comparisons are False) and then poisons the energy.
+    with pytest.raises(ConfigError, match=rf"SegmentationConfig.{field} must be a finite number, got {value}"):
+        SegmentationConfig(**{field: value})
+    with pytest.raises(ConfigError, match=r"origin_px must be finite"):
+        SegmentationConfig(origin_px=(float("nan"), 0.0))
+    assert SegmentationConfig(max_uncertainty=float("inf")).max_uncertainty == float("inf")  # a limit: no limit

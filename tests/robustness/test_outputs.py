@@ -1,0 +1,171 @@
+"""Where results go: `evseg segment` and `evseg flow` refuse outputs that cannot be written or
+would replace an input before any work, keep the result when the video fails, and give labels
+and flow indices in file order when --sort reorders the events."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from evseg.cli import main
+from evseg.errors import EvsegError
+from evseg.results import load_result
+
+
+def _run(capsys, *argv: str) -> tuple[int, list[str]]:
+    capsys.readouterr()
+    rc = main([*argv, "--no-progress"])
+    return rc, capsys.readouterr().err.strip().splitlines()
+
+
+@pytest.fixture()
+def recording(tmp_path, sim_files):
+    """A private copy of the simulated recording (so a test that fails may overwrite it)."""
+    _, sim, flow = sim_files
+    rec, fl = tmp_path / "rec.npz", tmp_path / "flow.npz"
+    rec.write_bytes(sim.read_bytes())
+    fl.write_bytes(flow.read_bytes())
+    return rec, fl
+
+
+@pytest.mark.parametrize("command", ["segment", "flow"])
+def test_the_output_may_not_be_the_recording(command, recording, capsys):
+    rec, _ = recording
+    before = rec.read_bytes()
+    rc, err = _run(capsys, command, str(rec), "--out", str(rec))
+    assert rc == 2 and len(err) == 1, err
+    assert f"--out {rec}: is the recording, which the run reads; choose another name" in err[0]
+    assert rec.read_bytes() == before
+
+
+def test_the_output_may_not_be_the_flow_file(recording, capsys):
+    rec, flow = recording
+    before = flow.read_bytes()
+    rc, err = _run(capsys, "segment", str(rec), "--flow", str(flow), "--out", str(flow))
+    assert rc == 2 and "is the flow file (--flow)" in err[0], err
+    assert flow.read_bytes() == before
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--video", "vid.gif"], "--video {d}/vid.gif: the file must end in .mp4"),
+    (["--video", "vid"], "--video {d}/vid: the file must end in .mp4"),
+    (["--out-is-a-folder"], "--out {d}/adir.npz: is a folder"),
+    (["--frames", "rec.npz"], "--frames {d}/rec.npz: is a file, not a folder"),
+    (["--out-below-a-file"], "--out {d}/rec.npz/r.npz: {d}/rec.npz is a file, not a folder"),
+])
+def test_unusable_outputs_fail_before_any_work(extra, message, recording, tmp_path, capsys):
+    rec, _ = recording
+    out = tmp_path / "r.npz"
+    if extra == ["--out-is-a-folder"]:
+        out = tmp_path / "adir.npz"
+        out.mkdir()
+        extra = []
+    elif extra == ["--out-below-a-file"]:
+        out = rec / "r.npz"
+        extra = []
+    else:
+        extra = [extra[0], str(tmp_path / extra[1])]
+    before = sorted(p.name for p in tmp_path.iterdir())
+    rc, err = _run(capsys, "segment", str(rec), "--out", str(out), "--flow-method", "planefit", *extra)
+    assert rc == 2 and len(err) == 1, err
+    assert message.format(d=tmp_path) in err[0]
+    assert sorted(p.name for p in tmp_path.iterdir()) == before  # nothing written, no temporary left
+
+
+def test_a_video_that_fails_at_the_end_keeps_the_result(recording, tmp_path, capsys, monkeypatch):
+    from evseg.overlay import VideoSink
+
+    def fail(self):
+        raise EvsegError(f"{self.video}: OpenCV wrote no video")
+
+    monkeypatch.setattr(VideoSink, "close", fail)
+    rec, flow = recording
+    out = tmp_path / "r.npz"
+    rc, err = _run(capsys, "segment", str(rec), "--flow", str(flow), "--out", str(out),
+                   "--video", str(tmp_path / "v.mp4"))
+    assert rc == 2 and "OpenCV wrote no video" in err[-1], err
+    r = load_result(out)
+    assert not r.partial and len(r.window_t0_us) == 4  # every window of the 40 ms recording
+
+
+@pytest.fixture()
+def unsorted(tmp_path, sim_files):
+    """The simulated recording with a block of 1,000 events reversed in time, as .npy files
+    with the simulator's normal flow as flow files: (unsorted file, its flow, its stable
+    time-sorted copy, that copy's flow, order: file position of each sorted event)."""
+    from evseg.io import read_events
+
+    sim, path, _ = sim_files
+    ev = read_events(path).events.copy()
+    source = np.arange(len(ev))  # event of the simulation at each file position
+    source[2000:3000] = source[2000:3000][::-1]
+    ev = ev[source]
+    order = np.argsort(ev["t"], kind="stable")
+    assert (order != np.arange(len(ev))).sum() > 900
+    files = {}
+    for name, at in (("unsorted", source), ("sorted", source[order])):
+        np.save(tmp_path / f"{name}.npy", ev if name == "unsorted" else ev[order])
+        ok = np.flatnonzero(np.isfinite(sim.normal_flow[at, 0]))
+        np.savez(tmp_path / f"{name}_flow.npz", index=ok, nx=sim.normal_flow[at[ok], 0],
+                 ny=sim.normal_flow[at[ok], 1])
+        files[name] = (tmp_path / f"{name}.npy", tmp_path / f"{name}_flow.npz")
+    return (*files["unsorted"], *files["sorted"], order)
+
+
+def test_sort_gives_labels_in_file_order(unsorted, tmp_path, capsys):
+    bad, bad_flow, good, good_flow, order = unsorted
+    size = ["--sensor-size", "128x96"]
+    assert _run(capsys, "segment", str(bad), "--sort", "--flow", str(bad_flow),
+                "--out", str(tmp_path / "a.npz"), *size)[0] == 0
+    assert _run(capsys, "segment", str(good), "--flow", str(good_flow), "--out", str(tmp_path / "b.npz"), *size)[0] == 0
+    a, b = load_result(tmp_path / "a.npz").label, load_result(tmp_path / "b.npz").label
+    assert len(np.unique(b)) >= 3  # background and objects: a reordering would show
+    np.testing.assert_array_equal(a[order], b)
+
+
+def test_flow_with_sort_writes_file_positions(unsorted, tmp_path, capsys):
+    bad, _, good, _, order = unsorted
+    size = ["--sensor-size", "128x96", "--baseline"]
+    assert _run(capsys, "flow", str(bad), "--sort", "--out", str(tmp_path / "fa.npz"), *size)[0] == 0
+    assert _run(capsys, "flow", str(good), "--out", str(tmp_path / "fb.npz"), *size)[0] == 0
+    fa, fb = np.load(tmp_path / "fa.npz"), np.load(tmp_path / "fb.npz")
+    assert len(fb["index"]) > 1000
+    back = np.argsort(order[fb["index"]], kind="stable")
+    np.testing.assert_array_equal(fa["index"], order[fb["index"]][back])
+    np.testing.assert_array_equal(fa["nx"], fb["nx"][back])
+
+
+def test_flow_of_another_sensor_is_refused(recording, tmp_path, capsys):
+    rec, flow = recording
+    with np.load(flow) as z:
+        arrays = dict(z)
+    np.savez(tmp_path / "other.npz", **arrays, sensor_size=np.array([346, 260]))
+    rc, err = _run(capsys, "segment", str(rec), "--flow", str(tmp_path / "other.npz"), "--out", str(tmp_path / "r.npz"))
+    assert rc == 2 and len(err) == 1, err
+    assert "key 'sensor_size' = [346, 260] but the recording's sensor is 128x96 (flow of another recording?)" in err[0]
+    assert not (tmp_path / "r.npz").exists()
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--mirrors", "8"], "--flow and --mirrors exclude each other"),
+    (["--model", "m.onnx"], "--flow and --model exclude each other"),
+    (["--flow-method", "planefit"], "--flow and --flow-method exclude each other"),
+    (["--speed", "2"], "--speed sets the replay of --realtime: give --realtime too"),
+    (["--max-lag-ms", "5"], "--max-lag-ms sets the replay of --realtime: give --realtime too"),
+    (["--threads", "0"], "--threads must be at least 1, got 0"),
+    (["--window-ms", "nan"], "--window-ms must be a positive number, got nan"),
+    (["--window-ms", "inf"], "--window-ms must be a positive number, got inf"),
+])
+def test_options_that_would_not_act_are_refused(extra, message, recording, tmp_path, capsys):
+    rec, flow = recording
+    rc, err = _run(capsys, "segment", str(rec), "--flow", str(flow), "--out", str(tmp_path / "r.npz"), *extra)
+    assert rc == 2 and len(err) == 1 and message in err[0], err
+
+
+def test_planefit_refuses_the_learned_flows_options(recording, tmp_path, capsys):
+    rec, _ = recording
+    rc, err = _run(capsys, "segment", str(rec), "--flow-method", "planefit", "--mirrors", "8",
+                   "--out", str(tmp_path / "r.npz"))
+    assert rc == 2 and "--flow-method planefit and --mirrors exclude each other" in err[0], err
