@@ -231,3 +231,20 @@ def test_seeds_set_and_presets_options_reach_the_simulated_evaluations(fake_eval
 def test_bad_seeds_or_settings_are_one_line_errors(argv, message, capsys):
     assert main(argv) == 2
     assert capsys.readouterr().err.strip() == f"evseg eval: error: {message}"
+
+
+def test_eval_bench_and_simulate_check_their_outputs_before_running(tmp_path, capsys):
+    # Each would run for seconds to minutes before writing: the output is checked first.
+    (tmp_path / "adir").mkdir()
+    folder = "--out {d}/adir: is a folder; give a file name inside it"
+    cases = [(["eval", "seg", "--quick", "--out", str(tmp_path / "adir")], folder),
+             (["bench", "seg", "--quick", "--out", str(tmp_path / "adir")], folder),
+             (["simulate", "--preset", "eed_like", "--out", str(tmp_path / "sim.txt"), "--quiet"],
+              "--out {d}/sim.txt: the file must end in .npz"),
+             (["simulate", "--preset", "eed_like", "--out", str(tmp_path / "s.npz"), "--preview",
+               str(tmp_path / "p.jpg"), "--quiet"], "--preview {d}/p.jpg: the file must end in .png")]
+    for argv, message in cases:
+        assert main(argv) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and message.format(d=tmp_path) in err[0], err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["adir"]

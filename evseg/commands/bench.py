@@ -167,5 +167,10 @@ def run(args: argparse.Namespace) -> int:
     if args.repeats < 1:
         raise EvsegError(f"--repeats must be at least 1, got {args.repeats}")
     fn = resolve_target("benchmark", TARGETS, args.target)
+    if args.out is not None:
+        from evseg.io.output_paths import check_output_path
+
+        # A run of minutes must not end in an error about where its table goes.
+        check_output_path(args.out, "--out", (), [("the model (--model)", getattr(args, "model", None))])
     emit_table(fn(repeats=args.repeats, quick=args.quick, **model_options(args, MODEL_TARGETS)), args.out)
     return 0

@@ -111,6 +111,11 @@ def run(args: argparse.Namespace) -> int:
     if args.overrides:
         options["overrides"] = _only_for(args.target, "--set", OVERRIDES_TARGETS, parse_overrides(args.overrides),
                                          "it segments nothing")
+    if args.out is not None:
+        from evseg.io.output_paths import check_output_path
+
+        # A run of minutes must not end in an error about where its table goes.
+        check_output_path(args.out, "--out", (), [("the model (--model)", getattr(args, "model", None))])
     emit_table(fn(quick=args.quick, **options), args.out)
     return 0
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import re
 import sys
 from pathlib import Path
@@ -48,8 +49,13 @@ def run(args: argparse.Namespace) -> int:
             cfg = load_scene_preset(name)
             print(f"{name:14s} {cfg.sensor.width}x{cfg.sensor.height}  {cfg.description}")
         return 0
-    if not args.duration > 0:
+    if not (math.isfinite(args.duration) and args.duration > 0):
         raise ConfigError(f"--duration must be positive seconds, got {args.duration}")
+    from evseg.io.output_paths import check_output_path
+
+    check_output_path(args.out, "--out", (".npz",), [("the scene config (--config)", args.config)])
+    if args.preview is not None:
+        check_output_path(args.preview, "--preview", (".png",), [("the scene config (--config)", args.config)])
     cfg = load_scene_file(args.config) if args.config else load_scene_preset(args.preset)
     if args.sensor:
         cfg = cfg.with_sensor_size(*parse_sensor(args.sensor))
