@@ -30,23 +30,27 @@ def run(args: argparse.Namespace) -> int:
 
     from evseg.errors import ModelError
     from evseg.export import export_onnx, parity
+    from evseg.io._atomic import atomic_path
+    from evseg.io.output_paths import check_output_path
     from evseg.veckm_flow import encode_targets, load_head_checkpoint, select_targets
     from evseg.veckm_flow.synthetic import translating_edges
 
+    check_output_path(args.out, "--out", (".onnx",), [("the checkpoint", args.checkpoint)])
     head, cfg = load_head_checkpoint(args.checkpoint)
     extra = {"checkpoint": args.checkpoint.name}
     if args.note:
         extra["note"] = args.note
-    export_onnx(head, cfg, args.out, opset=args.opset, extra_metadata=extra)
     scene = translating_edges(n_edges=10, seed=12345)
     targets = select_targets(scene.events, scene.sensor_size, cell_px=2)
     feats = encode_targets(scene.events, targets, scene.sensor_size, cfg)
-    diff = parity(head, cfg, args.out, feats)
-    if not np.isfinite(diff) or diff > args.tolerance:
-        args.out.unlink(missing_ok=True)
-        raise ModelError(
-            f"{args.out}: onnxruntime differs from torch by {diff:.3g} (> --tolerance {args.tolerance}); file removed"
-        )
+    # The parity check runs on a temporary file: a model that fails it never replaces a
+    # model already at --out.
+    with atomic_path(args.out) as tmp:
+        export_onnx(head, cfg, tmp, opset=args.opset, extra_metadata=extra)
+        diff = parity(head, cfg, tmp, feats)
+        if not np.isfinite(diff) or diff > args.tolerance:
+            raise ModelError(f"{args.out}: onnxruntime differs from torch by {diff:.3g} (> --tolerance "
+                             f"{args.tolerance}); nothing written")
     n_params = sum(int(p.numel()) for p in head.parameters())
     print(
         f"{args.out}: FlowHead({head.kwargs()}) {n_params} parameters, encoding {cfg.to_dict()}, "
