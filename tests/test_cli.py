@@ -1,5 +1,6 @@
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -248,3 +249,13 @@ def test_eval_bench_and_simulate_check_their_outputs_before_running(tmp_path, ca
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and message.format(d=tmp_path) in err[0], err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["adir"]
+
+
+def test_an_evaluation_of_another_model_names_it_in_its_table(fake_evaluations, tmp_path, capsys):
+    shipped = Path(__file__).resolve().parents[1] / "veckm_flow" / "weights" / "normal_flow.onnx"
+    model = tmp_path / "mine.onnx"
+    model.write_bytes(shipped.read_bytes())
+    assert main(["eval", "flow", "--quick", "--model", str(model), "--out", str(tmp_path / "t.md")]) == 0
+    assert f"normal-flow model: {model}" in (tmp_path / "t.md").read_text()
+    assert main(["eval", "flow", "--quick", "--out", str(tmp_path / "t.md")]) == 0
+    assert "normal-flow model" not in (tmp_path / "t.md").read_text()  # the shipped one: no line

@@ -5,7 +5,8 @@ Standard LightningCLI subcommands (``fit``, ``validate``) and options (``--train
 encoder settings are given once, as ``model.encoding``, and linked to the datamodule, so the
 features the head is trained on and the checkpoint's ``encoding`` hyper-parameters can never
 disagree. LightningCLI writes the effective config (``config.yaml``) into the run's log
-folder next to the checkpoints and the CSV metrics.
+folder next to the checkpoints and the CSV metrics; ``last.ckpt`` there holds the final step
+(:class:`~evseg.train.checkpointing.FinalLastCheckpoint`).
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from __future__ import annotations
 
 from lightning.pytorch.cli import LightningCLI
 
+from evseg.train.checkpointing import FinalLastCheckpoint
 from evseg.train.data import NormalFlowDataModule
 from evseg.train.module import NormalFlowModule
 
@@ -22,6 +24,8 @@ class NormalFlowCLI(LightningCLI):
 
     def add_arguments_to_parser(self, parser) -> None:
         parser.link_arguments("model.encoding", "data.encoding")
+        # Always on, whatever the config's callbacks: last.ckpt holds the last step.
+        parser.add_lightning_class_args(FinalLastCheckpoint, "final_last_checkpoint")
 
 
 def main(args: list[str] | None = None) -> NormalFlowCLI:

@@ -256,12 +256,14 @@ def load_flow_recording(path: str | Path) -> FlowSlice:
         * ``flow``: (N, 2) per-event optical flow, or
         * ``flow_maps``: (K, height, width, 2) dense optical flow and ``flow_t_us``: (K,)
           increasing start times; map k applies to events with
-          ``flow_t_us[k] <= t < flow_t_us[k+1]`` (the last map to the end). DSEC's forward
+          ``flow_t_us[k] <= t < flow_t_us[k+1]`` (the last map to the end; events before
+          ``flow_t_us[0]`` have no ground truth). DSEC's forward
           flow (a displacement in px over the interval dt) becomes px/s by dividing by dt;
           EVIMO2's per-frame flow the same way.
 
     Raises:
-        FormatError: a missing key or a field of the wrong shape (the message names both).
+        FormatError: a missing key, a field of the wrong shape or dtype (the message names
+            both), or no event with a finite flow.
     """
     path = Path(path)
     try:
@@ -277,7 +279,13 @@ def load_flow_recording(path: str | Path) -> FlowSlice:
         elif {"x", "y", "t", "p"} <= keys:
             from evseg.events import make_events
 
-            ev = make_events(z["x"], z["y"], z["t"].astype(np.int64), z["p"])
+            t = z["t"]
+            if not np.issubdtype(t.dtype, np.integer):
+                # Casting would truncate seconds (or any fraction) silently; evseg's readers take
+                # float time as seconds, but this layout's time is microseconds: say so.
+                raise FormatError(f"{path}: field 't' must be integer microseconds, got dtype {t.dtype} "
+                                  "(time in seconds: store np.round(t * 1e6).astype(np.int64))")
+            ev = make_events(z["x"], z["y"], t.astype(np.int64), z["p"])
         else:
             raise FormatError(f"{path}: needs field 'events' or fields 'x', 'y', 't', 'p' (has {sorted(keys)})")
         if "sensor_size" not in keys or z["sensor_size"].shape != (2,):
@@ -297,13 +305,17 @@ def load_flow_recording(path: str | Path) -> FlowSlice:
                 )
             if np.any(np.diff(t_maps) <= 0):
                 raise FormatError(f"{path}: field 'flow_t_us' must be strictly increasing")
-            k = np.clip(np.searchsorted(t_maps, ev["t"], side="right") - 1, 0, len(maps) - 1)
-            flow = np.asarray(maps[k, ev["y"], ev["x"]], np.float32)
+            k = np.searchsorted(t_maps, ev["t"], side="right") - 1
+            flow = np.asarray(maps[np.maximum(k, 0), ev["y"], ev["x"]], np.float32)
+            flow[k < 0] = np.nan  # before the first map's time: no ground truth
         else:
             raise FormatError(f"{path}: needs field 'flow' (N, 2) or fields 'flow_maps' and 'flow_t_us'")
     from evseg.events import validate_events
 
     validate_events(ev, (w, h), source=str(path))
+    if not np.isfinite(flow).all(axis=1).any():
+        raise FormatError(f"{path}: no event has a finite ground-truth flow (every 'flow' row is NaN), "
+                          "so the recording adds nothing to training")
     return FlowSlice(ev, (w, h), None, flow)
 
 
@@ -495,7 +507,11 @@ class NormalFlowDataModule(_lightning_datamodule_base()):
         ]
         if train:
             for r in self.real_recordings:
-                stem = hashlib.sha1(str(Path(r).resolve()).encode()).hexdigest()[:8]
+                # The file's size and modification time are in the key too: a recording fixed or
+                # exported again under the same name is encoded again, not read from the cache.
+                st = Path(r).stat()
+                ident = f"{Path(r).resolve()}|{st.st_size}|{st.st_mtime_ns}"
+                stem = hashlib.sha1(ident.encode()).hexdigest()[:8]
                 for rep in range(self.real_repeats):
                     path = root / f"real_{Path(r).stem}_{stem}_r{rep}.npz"
                     jobs.append(("real", r, rep, 0, str(path), self.encoding, self.slices, augment))

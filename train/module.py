@@ -213,6 +213,22 @@ class NormalFlowModule(pl.LightningModule):
 
     # ------------------------------------------------------------------ optimiser
 
+    def on_load_checkpoint(self, checkpoint: dict) -> None:
+        """Resuming (``--ckpt_path``) a run with another length would fail deep in the
+        one-cycle schedule (its total step count is restored with it): say so first."""
+        from evseg.errors import ConfigError
+
+        trainer = self._trainer
+        planned = [s.get("total_steps") for s in checkpoint.get("lr_schedulers", []) if isinstance(s, dict)]
+        if trainer is None or not planned or planned[0] is None or trainer.state.fn != "fit":
+            return
+        now = trainer.max_steps
+        if now is not None and now > 0 and int(now) != int(planned[0]):
+            raise ConfigError(
+                f"--ckpt_path: the checkpoint's run was planned for {int(planned[0])} steps (its one-cycle "
+                f"learning rate ends there), this one for {int(now)}; resume it with --trainer.max_steps "
+                f"{int(planned[0])}, or start a new run to train longer")
+
     def configure_optimizers(self):
         opt = torch.optim.AdamW(self.parameters(), lr=self.hparams.lr, weight_decay=self.hparams.weight_decay)
         total = self.trainer.estimated_stepping_batches

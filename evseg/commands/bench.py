@@ -152,11 +152,13 @@ def resolve_target(kind: str, targets: dict[str, str], name: str):
         raise EvsegError(f"{kind} '{name}' is not available in this build ({exc})") from None
 
 
-def emit_table(rows: list[dict], out: Path | None) -> None:
-    """Print the machine line and the table; also write them to ``out`` (atomically)."""
+def emit_table(rows: list[dict], out: Path | None, notes: tuple[str, ...] = ()) -> None:
+    """Print the machine line, ``notes`` (one line each, e.g. the model evaluated) and the
+    table; also write them to ``out`` (atomically)."""
     from evseg.io._atomic import atomic_path
 
-    text = f"{machine_line()}\n\n{markdown_table(rows)}"
+    head = "\n\n".join([machine_line(), *notes])
+    text = f"{head}\n\n{markdown_table(rows)}"
     sys.stdout.write(text)
     if out is not None:
         with atomic_path(out) as tmp:

@@ -116,7 +116,9 @@ def run(args: argparse.Namespace) -> int:
 
         # A run of minutes must not end in an error about where its table goes.
         check_output_path(args.out, "--out", (), [("the model (--model)", getattr(args, "model", None))])
-    emit_table(fn(quick=args.quick, **options), args.out)
+    # Tables of several trained models side by side must say which is which.
+    notes = (f"normal-flow model: {args.model}",) if "model_path" in options else ()
+    emit_table(fn(quick=args.quick, **options), args.out, notes)
     return 0
 
 

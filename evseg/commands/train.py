@@ -3,7 +3,10 @@
 Everything from --config on is handed to LightningCLI unchanged, so every Lightning option
 works: ``evseg train --config configs/train/default.yaml --trainer.max_steps 2000
 --trainer.accelerator gpu --trainer.devices 2 --trainer.strategy ddp``. The run folder
-(default ``runs/<name>/version_N``) receives the effective config, checkpoints and CSV metrics.
+(``runs/<config>/normal_flow/version_N``, set by the config's logger:
+``--trainer.logger.init_args.save_dir DIR`` moves it) receives the effective config,
+checkpoints (``last.ckpt``: the final step) and CSV metrics. A run resumes from a checkpoint
+with ``--ckpt_path FILE`` and the same ``--trainer.max_steps``.
 Equivalent to ``python -m evseg.train fit --config ...``.
 """
 
@@ -42,7 +45,14 @@ def run(args: argparse.Namespace) -> int:
     config, rest = args.config[0], args.config[1:]
     if not Path(config).is_file():
         raise ConfigError(f"--config: file not found: {config}")
+    from lightning.fabric.utilities.exceptions import MisconfigurationException
+
     from evseg.train.cli import main
 
-    main([args.subcommand, "--config", config, *rest])
+    try:
+        main([args.subcommand, "--config", config, *rest])
+    except MisconfigurationException as exc:
+        # Lightning's word for a setting this machine or run cannot honour (e.g. an
+        # accelerator it does not have): the user's to change, not a bug in evseg.
+        raise ConfigError(f"{config}: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
     return 0

@@ -110,3 +110,36 @@ def test_shipped_configs_parse(tmp_path):
         if name == "pyramid_t20.yaml":
             assert printed["model"]["encoding"]["pyramid_levels"] == 2
             assert printed["model"]["encoding"]["t_scale_us"] == 20000.0
+
+
+def test_last_checkpoint_holds_the_final_step_and_resumes(tmp_path, edge_recording):
+    import torch
+
+    from evseg.errors import ConfigError
+    from evseg.train.cli import main
+
+    # Validation at step 4 of 7 only: Lightning 2.6 alone leaves last.ckpt at step 4.
+    args = [*_tiny_args(tmp_path, edge_recording), "--data.val_seeds", "[900, 901]",
+            "--data.presets", "[eed_like]", "--data.train_seeds", "[0, 1]", "--data.duration_us", "40000",
+            "--trainer.max_steps", "7", "--trainer.val_check_interval", "4"]
+    cli = main(["fit", "--config", str(QUICK), *args])
+    assert cli.trainer.global_step == 7
+    last = _run_dir(tmp_path) / "checkpoints" / "last.ckpt"
+    assert torch.load(last, weights_only=False)["global_step"] == 7
+    # Resuming it with the same length is a no-op run; with another length a one-line error.
+    cli = main(["fit", "--config", str(QUICK), *args, "--ckpt_path", str(last)])
+    assert cli.trainer.global_step == 7
+    with pytest.raises(ConfigError, match=r"planned for 7 steps .* this one for 9; resume it with "
+                                          r"--trainer.max_steps 7"):
+        main(["fit", "--config", str(QUICK), *args, "--trainer.max_steps", "9", "--ckpt_path", str(last)])
+
+
+def test_an_accelerator_the_machine_lacks_is_a_user_error(tmp_path, edge_recording, capsys):
+    import torch
+
+    if torch.cuda.is_available():
+        pytest.skip("this machine has a GPU")
+    rc = evseg_main(["train", "--config", str(QUICK), *_tiny_args(tmp_path, edge_recording),
+                     "--trainer.accelerator", "gpu"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and str(QUICK) in err[0] and "gpu" in err[0].lower(), err

@@ -52,6 +52,39 @@ def test_recording_errors_name_the_field(tmp_path):
         load_flow_recording(tmp_path / "junk.npz")
 
 
+def test_float_time_no_flow_and_events_before_the_first_map(edge_recording, tmp_path):
+    with np.load(edge_recording) as z:
+        rec = dict(z)
+    p = tmp_path / "r.npz"
+    np.savez(p, **{**rec, "t": rec["t"] / 1e6})  # seconds: casting would make every time 0
+    with pytest.raises(FormatError, match=r"r.npz: field 't' must be integer microseconds, got dtype float64"):
+        load_flow_recording(p)
+    np.savez(p, **{**rec, "flow": np.full_like(rec["flow"], np.nan)})
+    with pytest.raises(FormatError, match=r"r.npz: no event has a finite ground-truth flow"):
+        load_flow_recording(p)
+    # Maps from 20 ms on: the events before have no ground truth (not map 0's flow).
+    w, h = EDGE_SENSOR
+    maps = np.tile(np.float32(EDGE_FLOW_PX_S), (2, h, w, 1))
+    common = {k: rec[k] for k in ("x", "y", "t", "p", "sensor_size")}
+    np.savez(p, **common, flow_maps=maps, flow_t_us=np.array([20_000, 40_000]))
+    flow = load_flow_recording(p).optical_flow
+    early = rec["t"] < 20_000
+    assert early.sum() > 100 and np.isnan(flow[early]).all()
+    np.testing.assert_array_equal(flow[~early], np.tile(np.float32(EDGE_FLOW_PX_S), ((~early).sum(), 1)))
+
+
+def test_a_recording_changed_under_its_name_is_encoded_again(edge_recording, tmp_path):
+    import os
+
+    dm = NormalFlowDataModule(presets=[], real_recordings=[str(edge_recording)], slices=SMALL,
+                              cache_dir=str(tmp_path / "cache"), batch_size=16, build_workers=1)
+    before = [job[4] for job in dm._jobs(True)]
+    assert before == [job[4] for job in dm._jobs(True)]  # same file: same shard
+    st = edge_recording.stat()
+    os.utime(edge_recording, ns=(st.st_atime_ns, st.st_mtime_ns + 1_000_000_000))  # exported again
+    assert [job[4] for job in dm._jobs(True)] != before
+
+
 def test_held_out_seeds_are_refused():
     check_training_seeds([0, 999], "x")
     with pytest.raises(ConfigError, match="held out"):
