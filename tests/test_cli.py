@@ -196,6 +196,9 @@ def test_seeds_set_and_presets_options_reach_the_simulated_evaluations(fake_eval
     assert seen["static"] == {"seeds": [900, 901], "overrides": {"uncertainty_angle_gain": 0}}
     assert main(["eval", "pipeline-real", "--set", "lambda_m=60", "--out", out]) == 0
     assert seen["pipeline-real"] == {"overrides": {"lambda_m": 60}}
+    # The flow's accuracy on the training configs' validation scenes (a user's own model).
+    assert main(["eval", "flow", "--seeds", "900-903", "--presets", "eed_like", "--out", out]) == 0
+    assert seen["flow"] == {"seeds": [900, 901, 902, 903], "presets": ["eed_like"]}
     capsys.readouterr()
 
 
@@ -203,8 +206,10 @@ def test_seeds_set_and_presets_options_reach_the_simulated_evaluations(fake_eval
     (["eval", "seg", "--seeds", "900-9x"], "--seeds: '900-9x' is not a seed or a range A-B (e.g. 900-909)"),
     (["eval", "seg", "--seeds", "910-900"], "--seeds: range '910-900' runs backwards"),
     (["eval", "seg", "--seeds", "900,900"], "--seeds: '900,900' must name distinct non-negative seeds"),
-    (["eval", "flow", "--seeds", "900"], "--seeds applies to seg, pipeline, flow-errors, static, not to 'flow' (it runs fixed "
-                                         "scenes or recordings)"),
+    (["eval", "flow-real", "--seeds", "900"], "--seeds applies to seg, pipeline, flow-errors, static, flow, not to "
+                                              "'flow-real' (it runs fixed scenes or recordings)"),
+    (["eval", "flow", "--seeds", "0-3"], "--seeds: [0, 1, 2, 3] are below 900; the normal-flow model trained on scene seeds "
+                                         "0-47, so use validation seeds (900-999) or the held-out ones (>= 1000, the default)"),
     (["eval", "static", "--seeds", "5"], "--seeds: [5] are below 900; the normal-flow model trained on scene seeds 0-47, "
                                          "so use validation seeds (900-999) or the held-out ones (>= 1000, the default)"),
     (["eval", "pipeline", "--seeds", "40-42"], "--seeds: [40, 41, 42] are below 900; the normal-flow model trained on "
@@ -214,7 +219,7 @@ def test_seeds_set_and_presets_options_reach_the_simulated_evaluations(fake_eval
     (["eval", "seg", "--set", "lambda_m=[1"], "--set: cannot read the value of 'lambda_m=[1'"),
     (["eval", "flow", "--set", "lambda_m=60"], "--set applies to seg, pipeline, flow-errors, static, pipeline-real, not to "
                                                 "'flow' (it segments nothing)"),
-    (["eval", "static", "--presets", "eed_like"], "--presets applies to seg, pipeline, flow-errors, not to 'static' (it runs "
+    (["eval", "static", "--presets", "eed_like"], "--presets applies to seg, pipeline, flow-errors, flow, not to 'static' (it runs "
                                                    "fixed scenes or recordings)"),
     (["eval", "seg", "--quick", "--set", "lambda_m=abc"], "evaluate_oracle: field 'lambda_m' must be float, got 'abc'"),
     (["eval", "seg", "--quick", "--set", "lambda_mm=60"], "evaluate_oracle: unknown segmentation parameter(s) ['lambda_mm']"),
@@ -222,8 +227,6 @@ def test_seeds_set_and_presets_options_reach_the_simulated_evaluations(fake_eval
      "evaluate_static_camera: unknown segmentation parameter(s) ['lambda_mm']"),
     (["eval", "pipeline-real", "--quick", "--set", "lambda_mm=60"],
      "evaluate_pipeline_real: unknown segmentation parameter(s) ['lambda_mm']"),
-    (["eval", "flow", "--presets", "eed_like"], "--presets applies to seg, pipeline, flow-errors, not to 'flow' (it runs fixed "
-                                                 "scenes or recordings)"),
     (["eval", "seg", "--quick", "--presets", "eed"], "evaluate_oracle: unknown or no simulator preset(s) ['eed']; "
                                                       "known: ['eed_like', 'evimo_like', 'driving_like']"),
     (["eval", "pipeline", "--quick", "--presets", ","], "evaluate_pipeline: unknown or no simulator preset(s) []; "
@@ -259,3 +262,21 @@ def test_an_evaluation_of_another_model_names_it_in_its_table(fake_evaluations, 
     assert f"normal-flow model: {model}" in (tmp_path / "t.md").read_text()
     assert main(["eval", "flow", "--quick", "--out", str(tmp_path / "t.md")]) == 0
     assert "normal-flow model" not in (tmp_path / "t.md").read_text()  # the shipped one: no line
+
+
+def test_evaluate_flow_runs_the_scenes_asked_for():
+    from evseg.errors import ConfigError
+    from evseg.train.evaluate import evaluate_flow
+
+    rows = evaluate_flow(quick=True, seeds=[900], presets=["eed_like"])
+    assert [r["preset"] for r in rows] == ["eed_like", "overall"]
+    with pytest.raises(ConfigError, match="evseg eval flow: unknown or no simulator preset"):
+        evaluate_flow(quick=True, presets=["nope"])
+
+
+def test_a_training_checkpoint_given_as_model_says_to_export_it(tmp_path, capsys):
+    ckpt = tmp_path / "last.ckpt"
+    ckpt.write_bytes(b"PK\x03\x04 not an onnx model")
+    assert main(["flow", str(tmp_path / "x.npz"), "--model", str(ckpt), "--out", str(tmp_path / "f.npz")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"a training checkpoint? export it first: evseg export {ckpt} --out model.onnx" in err[0]

@@ -46,6 +46,9 @@ import numpy as np
 from evseg.metrics import angular_error_deg, norm_error, relative_magnitude_error, warp_sharpness
 
 HELD_OUT_SEED_START = 1000
+VALIDATION_SEED_START = 900
+"""Seeds 900-999: the training configs' validation scenes (``data.val_seeds``), which
+``evseg eval flow --seeds`` may use to compare models without looking at the held-out ones."""
 
 
 @dataclass(frozen=True)
@@ -54,7 +57,8 @@ class FlowEvalConfig:
 
     Attributes:
         presets: simulator presets (empty: all of :func:`evseg.simulator.list_scene_presets`).
-        seeds: scene seeds per preset (all >= 1000: held out from training).
+        seeds: scene seeds per preset (>= 1000: held out from training, the default;
+            900-999: validation).
         duration_us: simulated duration per scene, microseconds.
         slice_us: slice duration, microseconds (the pipeline's 10 ms window).
         context_us: events of this span before a slice are neighbours of its targets too,
@@ -74,9 +78,11 @@ class FlowEvalConfig:
     drop_fraction: float = 0.2
 
     def __post_init__(self) -> None:
-        bad = [s for s in self.seeds if s < HELD_OUT_SEED_START]
+        bad = [s for s in self.seeds if s < VALIDATION_SEED_START]
         if bad:
-            raise ValueError(f"evaluation seeds must be >= {HELD_OUT_SEED_START} (held out from training), got {bad}")
+            raise ValueError(f"evaluation seeds must be >= {VALIDATION_SEED_START} (validation {VALIDATION_SEED_START}-"
+                             f"{HELD_OUT_SEED_START - 1}, held out from {HELD_OUT_SEED_START}; the training configs "
+                             f"train on lower seeds), got {bad}")
 
 
 QUICK = FlowEvalConfig(seeds=(1000,), duration_us=60_000)
@@ -252,11 +258,23 @@ def _estimators(model_path: str | Path | None, mirrors: int = 1):
     return OnnxNormalFlow(model_path, mirrors=mirrors), PlaneFitNormalFlow()
 
 
-def evaluate_flow(quick: bool = False, model_path: str | Path | None = None, mirrors: int = 1) -> list[dict]:
+def evaluate_flow(quick: bool = False, model_path: str | Path | None = None, mirrors: int = 1,
+                  seeds=None, presets=None) -> list[dict]:
     """``evseg eval flow``: learned (shipped model by default; ``mirrors``: its mirror looks,
-    ``evseg flow --mirrors``) vs plane fit on held-out scenes."""
+    ``evseg flow --mirrors``) vs plane fit on held-out scenes; ``seeds`` / ``presets``: other
+    scenes (``--seeds 900-903``: the training configs' validation scenes)."""
+    from dataclasses import replace
+
+    from evseg.segmentation.evaluate import check_presets
+    from evseg.simulator import list_scene_presets
+
+    cfg = QUICK if quick else FlowEvalConfig()
+    if seeds is not None:
+        cfg = replace(cfg, seeds=tuple(int(s) for s in seeds))
+    if presets is not None:
+        cfg = replace(cfg, presets=tuple(check_presets(presets, list_scene_presets(), "evseg eval flow")))
     learned, baseline = _estimators(model_path, mirrors)
-    return evaluate_estimators(learned, baseline, QUICK if quick else FlowEvalConfig())
+    return evaluate_estimators(learned, baseline, cfg)
 
 
 # --------------------------------------------------------------------------- real recordings

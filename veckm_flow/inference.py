@@ -90,7 +90,11 @@ def _session(path: Path, threads: int | None):
     try:
         return ort.InferenceSession(str(path), sess_options=opts, providers=["CPUExecutionProvider"])
     except Exception as exc:  # onnxruntime raises its own exception types for corrupt files
-        raise ModelError(f"{path}: onnxruntime cannot load the model ({type(exc).__name__}: {exc})") from None
+        hint = ""
+        if path.suffix.lower() in (".ckpt", ".pt", ".pth"):
+            hint = f"; a training checkpoint? export it first: evseg export {path} --out model.onnx"
+        first = str(exc).splitlines()[0] if str(exc) else ""
+        raise ModelError(f"{path}: onnxruntime cannot load the model ({type(exc).__name__}: {first}){hint}") from None
 
 
 class OnnxNormalFlow:

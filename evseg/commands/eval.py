@@ -44,13 +44,13 @@ SLOW_EDGES_TARGETS = ("pipeline", "pipeline-real", "static")
 
 # Targets whose function takes ``seeds`` (simulated scenes), ``presets`` (a subset of the
 # simulator presets) and ``overrides`` (segmentation fields set on every preset it uses).
-SEEDS_TARGETS = ("seg", "pipeline", "flow-errors", "static")
-PRESETS_TARGETS = ("seg", "pipeline", "flow-errors")
+SEEDS_TARGETS = ("seg", "pipeline", "flow-errors", "static", "flow")
+PRESETS_TARGETS = ("seg", "pipeline", "flow-errors", "flow")
 OVERRIDES_TARGETS = ("seg", "pipeline", "flow-errors", "static", "pipeline-real")
 
 # Targets that run the shipped normal-flow model on simulated scenes: seeds below the
 # validation range were its training scenes.
-LEARNED_FLOW_SEED_TARGETS = ("pipeline", "flow-errors", "static")
+LEARNED_FLOW_SEED_TARGETS = ("pipeline", "flow-errors", "static", "flow")
 
 FIRST_VALIDATION_SEED = 900
 """The shipped normal-flow model trained on scene seeds 0-47 (``configs/train/default.yaml``):

@@ -41,9 +41,11 @@ def test_accuracy_row_exact_values():
     assert row["relmag_learned"] == pytest.approx(0.0)  # |p| = |n| on the common targets
 
 
-def test_held_out_seeds_only():
-    with pytest.raises(ValueError, match="held out"):
-        FlowEvalConfig(seeds=(999,))
+def test_validation_or_held_out_seeds_only():
+    # Training scenes (below 900) would flatter a model; validation scenes (900-999) compare models.
+    with pytest.raises(ValueError, match=r"must be >= 900 \(validation 900-999, held out from 1000"):
+        FlowEvalConfig(seeds=(47,))
+    assert FlowEvalConfig(seeds=(900, 999)).seeds == (900, 999)
 
 
 def test_protocol_scores_a_perfect_and_a_reversed_estimator():
