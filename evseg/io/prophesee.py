@@ -115,6 +115,11 @@ def sniff_raw_format(head: bytes) -> str | None:
     except FormatError:
         return None
     enc = encoding_of(fields)
+    if enc is None:
+        from evseg.io.prophesee_dat import is_dat_header
+
+        if is_dat_header(fields):
+            return "dat"
     return enc if enc is not None else "raw (no encoding in header)"
 
 

@@ -66,6 +66,8 @@ FORMATS: dict[str, FormatSpec] = {
                    "Prophesee .raw EVT 3.0"),
         FormatSpec("es", "eventstream", (".es",), b"Event Stream",
                    "Event Stream v2 .es, type DVS"),
+        FormatSpec("dat", "prophesee_dat", (".dat",), b"%",
+                   "Prophesee .dat of CD events (Gen1 / 1 Mpx automotive datasets, Metavision export)"),
     ]
 }
 """Supported formats by registry name."""
@@ -123,6 +125,8 @@ def detect_format(path: str | Path) -> str:
     suffix = path.suffix.lower()
     by_suffix = [s.name for s in FORMATS.values() if suffix in s.suffixes]
     by_magic = _by_magic(head)
+    if by_magic == "raw (no encoding in header)" and suffix == ".dat":
+        by_magic = "dat"  # a DAT header without its (mandatory) 'Data file containing' line
     if by_magic is not None and by_magic not in FORMATS:
         raise FormatError(
             f"{path}: Prophesee .raw header names encoding '{by_magic}', which evseg does not read "
@@ -136,10 +140,10 @@ def detect_format(path: str | Path) -> str:
                 "(format=...) to read it as such"
             )
         return by_magic
-    if by_suffix == ["text"]:
+    if "text" in by_suffix and (by_suffix == ["text"] or _looks_like_text(head)):
         return "text"  # no magic: the text reader reports bad content with its line number
     if by_suffix:
-        spec = FORMATS[by_suffix[0]]
+        spec = next((FORMATS[n] for n in by_suffix if FORMATS[n].magic), FORMATS[by_suffix[0]])
         expected = [SQLITE_MAGIC, MCAP_MAGIC] if spec.name == "rosbag2" else [spec.magic]
         raise FormatError(
             f"{path}: not a valid {'/'.join(by_suffix)} file: bad magic bytes at offset 0 "

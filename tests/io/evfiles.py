@@ -35,6 +35,17 @@ def evt2_bytes(ev: np.ndarray, header: str = "% evt 2.0\n% geometry 64x48\n% end
     return header.encode() + struct.pack(f"<{len(words)}I", *words)
 
 
+def dat_bytes(ev: np.ndarray, header: str = "% Data file containing CD events\n% Version 2\n% Width 64\n% Height 48\n",
+              event_type: int = 0x0C, event_size: int = 8, t_raw=None) -> bytes:
+    """Prophesee DAT (one struct per record, independent of the reader's vectorised decode);
+    ``t_raw``: the 32-bit timestamps to write instead of ``ev['t']`` (e.g. wrapped)."""
+    t = ev["t"] if t_raw is None else t_raw
+    body = b"".join(struct.pack("<II", int(ti) & 0xFFFFFFFF,
+                                int(e["x"]) | (int(e["y"]) << 14) | ((1 if e["p"] > 0 else 0) << 28))
+                    for ti, e in zip(t, ev))
+    return header.encode() + bytes([event_type, event_size]) + body
+
+
 def evt3_bytes(ev: np.ndarray, header: str = "% evt 3.0\n% format EVT3;height=48;width=64\n% end\n") -> bytes:
     """EVT3 with one EVT_ADDR_X word per event (vectors are tested with hand-made words)."""
     words = []

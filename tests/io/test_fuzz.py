@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import scipy.io
 
-from evfiles import es_bytes, evt2_bytes, evt3_bytes, sample_events, text_lines, write_bag
+from evfiles import dat_bytes, es_bytes, evt2_bytes, evt3_bytes, sample_events, text_lines, write_bag
 from evseg.errors import EvsegError
 from evseg.events import EventStream, validate_events
 from evseg.io import read_events, write_h5, write_npz
@@ -48,6 +48,8 @@ def _valid_file(tmp_path, fmt: str, shared) -> tuple[bytes, str]:
         return evt3_bytes(ev), ".raw"
     if fmt == "es":
         return es_bytes(ev), ".es"
+    if fmt == "dat":
+        return dat_bytes(ev), ".dat"
     if fmt == "aedat4":
         if shared is None:
             pytest.skip("no AEDAT4 writer; the corpus needs the shared real file")
@@ -80,7 +82,7 @@ def corpus(data: bytes, seed: int) -> list[tuple[str, bytes]]:
     return out
 
 
-FORMATS = ["txt", "csv", "npy", "npz", "mat", "h5", "bag", "evt2", "evt3", "es", "aedat4"]
+FORMATS = ["txt", "csv", "npy", "npz", "mat", "h5", "bag", "evt2", "evt3", "es", "dat", "aedat4"]
 
 
 @pytest.mark.parametrize("fmt", FORMATS)
@@ -112,7 +114,8 @@ def test_misnamed_files_of_every_other_format(tmp_path, request):
     files = {f: _valid_file(tmp_path, f, None) for f in FORMATS if f != "aedat4"}
     for fmt, (data, _) in files.items():
         for other, (_, suffix) in files.items():
-            if suffix == files[fmt][1] or {suffix, files[fmt][1]} <= {".txt", ".csv"}:
+            # .txt, .csv and .dat all name text files (.dat also Prophesee DAT, told apart by content).
+            if suffix == files[fmt][1] or (fmt in ("txt", "csv") and suffix in (".txt", ".csv", ".dat")):
                 continue
             p = tmp_path / f"{fmt}_as{suffix}"
             p.write_bytes(data)

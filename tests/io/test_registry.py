@@ -15,7 +15,8 @@ def test_every_format_has_a_reader_module():
 
     for spec in FORMATS.values():
         assert hasattr(importlib.import_module(f"evseg.io.{spec.module}"), "open_source")
-    assert format_names() == ["text", "npy", "npz", "mat", "h5", "rosbag", "rosbag2", "aedat4", "evt2", "evt3", "es"]
+    assert format_names() == ["text", "npy", "npz", "mat", "h5", "rosbag", "rosbag2", "aedat4", "evt2", "evt3", "es",
+                              "dat"]
 
 
 def test_detection_by_magic_ignores_unknown_extension(tmp_path):
