@@ -49,7 +49,9 @@ EVENT_DTYPE = np.dtype([("x", "<u2"), ("y", "<u2"), ("t", "<i8"), ("p", "i1")])
 def make_events(x, y, t, p) -> np.ndarray:
     """Build an :data:`EVENT_DTYPE` array from four equal-length sequences.
 
-    ``p`` may be +1/-1, 0/1 or boolean; 0 and False become -1.
+    ``p`` may be +1/-1, 0/1 or boolean: values > 0 become +1, the others -1. ``x``, ``y``
+    and ``t`` (microseconds) must be whole numbers that fit their fields (else
+    :class:`~evseg.errors.EventDataError`): casting would truncate time in seconds to 0.
 
     >>> make_events([0], [1], [5], [0])["p"].tolist()
     [-1]
@@ -59,6 +61,21 @@ def make_events(x, y, t, p) -> np.ndarray:
     for name, a in (("y", y), ("t", t), ("p", p)):
         if len(a) != n:
             raise EventDataError(f"make_events: field '{name}' has {len(a)} values, 'x' has {n}")
+    # Storing into the integer fields would truncate or wrap silently: time in seconds would all
+    # become 0, x = -1 would become 65535.
+    for name, a, lo, hi in (("x", x, 0, 65535), ("y", y, 0, 65535), ("t", t, -(2**63), 2**63 - 1)):
+        if n == 0:
+            break
+        if not (np.issubdtype(a.dtype, np.integer) or np.issubdtype(a.dtype, np.bool_)):
+            whole = np.isfinite(a) & (a == np.round(a)) if np.issubdtype(a.dtype, np.number) else np.zeros(n, bool)
+            if not whole.all():
+                i = int(np.flatnonzero(~whole)[0])
+                unit = " (integer microseconds; time in seconds: multiply by 1e6 and round)" if name == "t" else ""
+                raise EventDataError(f"make_events: field '{name}' = {a[i].item()!r} at event {i} "
+                                     f"is not a whole number{unit}")
+        if a.min() < lo or a.max() > hi:
+            i = int(np.flatnonzero((a < lo) | (a > hi))[0])
+            raise EventDataError(f"make_events: field '{name}' = {a[i].item()!r} at event {i} is outside [{lo}, {hi}]")
     ev = np.empty(n, dtype=EVENT_DTYPE)
     ev["x"] = x
     ev["y"] = y

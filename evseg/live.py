@@ -192,6 +192,7 @@ def run_live(
     if cfg.flow == "precomputed":
         raise ConfigError("a live run estimates its own normal flow: pipeline.flow must be learned or planefit, "
                           "not precomputed")
+    pipeline.reset()  # a live run starts afresh, as pipeline.run does
     packets: queue.Queue = queue.Queue()
     stop = threading.Event()
     reader = threading.Thread(target=_read_into, args=(source, packets, clock, stop),

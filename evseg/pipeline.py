@@ -218,8 +218,10 @@ class WindowResult:
         first_event: position of the window's first event in the input.
         events: the window's events (a view).
         labels: int16 per event of the window: -1 unassigned, 0 background, k object id.
-        boxes: object id -> (x0, y0, x1, y1) inclusive px.
-        masks: object id -> bool (height, width) dense mask.
+        boxes: object id -> (x0, y0, x1, y1) inclusive px of the sensor's raw pixel grid, like
+            the events (with a calibration, the segmentation's boxes and masks, which are in
+            undistorted pixels, are mapped back through the undistortion table).
+        masks: object id -> bool (height, width) dense mask, raw pixels likewise.
         flow_index, flow: positions (in ``events``) and (nx, ny) px/s of the target flows.
         segmentation: the raw :class:`evseg.segmentation` result (labels 1..K, models).
         timings_ms: stage -> milliseconds ('flow', 'preprocessing', ...; with ``overlap`` the
@@ -266,6 +268,13 @@ class MotionSegmentationPipeline:
             raise ConfigError("the pipeline needs the sensor size (width, height)")
         self.config = config if config.segmentation is not None else replace(config, segmentation=SegmentationConfig())
         self.sensor_size = (int(sensor_size[0]), int(sensor_size[1]))
+        if calibration is not None and tuple(int(v) for v in calibration.sensor_size) != self.sensor_size:
+            # Intrinsics of another camera or resolution would undistort every event wrongly.
+            from evseg.errors import CalibrationError
+
+            raise CalibrationError(
+                f"MotionSegmentationPipeline: the calibration is for {calibration.sensor_size[0]}x"
+                f"{calibration.sensor_size[1]} px, the sensor is {self.sensor_size[0]}x{self.sensor_size[1]}")
         self.calibration = calibration
         self._undistortion = UndistortionTable.from_calibration(calibration) if calibration is not None else None
         self._estimator = None
@@ -556,6 +565,10 @@ class MotionSegmentationPipeline:
         labels = lut[seg_labels + 1].astype(np.int16)
         boxes = {shown[int(k)]: tuple(int(c) for c in v) for k, v in seg.boxes.items() if int(k) in shown}
         masks = {shown[int(k)]: v for k, v in (getattr(seg, "masks", None) or {}).items() if int(k) in shown}
+        if self._undistortion is not None:
+            # Segmentation (and the tracks) work in undistorted pixels; boxes and masks are
+            # reported in the sensor's raw pixels, like the events their labels belong to.
+            boxes, masks = self._to_raw_pixels(boxes, masks, ev, labels)
         timings["propagation"] += (time.perf_counter() - t0) * 1e3
         self._predict_tracks(seg, mapping)
         if self._tracked_estimator is not None:
@@ -565,6 +578,25 @@ class MotionSegmentationPipeline:
             events=ev, labels=labels, boxes=boxes, masks=masks, flow_index=idx,
             flow=np.stack([nx, ny], axis=-1), segmentation=seg, timings_ms=timings,
         )
+
+    def _to_raw_pixels(self, boxes: dict, masks: dict, events: np.ndarray, labels: np.ndarray) -> tuple[dict, dict]:
+        """Boxes and masks of a calibrated run (undistorted px) in raw sensor pixels: each mask
+        looked up through the undistortion table, each box that mask's extent (or, for an
+        object whose mask covers no raw pixel, the extent of its labelled events)."""
+        from evseg.undistortion import mask_to_raw, raw_box
+
+        raw_masks = {oid: mask_to_raw(self._undistortion, m) for oid, m in masks.items()}
+        raw_boxes = {}
+        for oid in boxes:
+            box = raw_box(raw_masks[oid]) if oid in raw_masks else None
+            if box is None:
+                own = labels == oid
+                if not own.any():
+                    continue
+                x, y = events["x"][own], events["y"][own]
+                box = (int(x.min()), int(y.min()), int(x.max()), int(y.max()))
+            raw_boxes[oid] = box
+        return raw_boxes, {oid: m for oid, m in raw_masks.items() if oid in raw_boxes}
 
     def _tracked_objects(self) -> tuple[np.ndarray, np.ndarray] | None:
         """Boxes (moved to this window) and last models of the live tracks, for motion
@@ -614,6 +646,7 @@ class MotionSegmentationPipeline:
         """Segment a whole stream: an EventStream, one event array (:data:`~evseg.events.EVENT_DTYPE`)
         or an iterable of event chunks, each sorted by time and each starting no earlier than
         the one before ended (else :class:`~evseg.errors.EventDataError` naming the chunk).
+        Each call starts afresh (:meth:`reset`): object ids from 1, no tracks carried over.
 
         ``precomputed_flow``: the arrays of an ``evseg flow`` file (``index`` into the whole
         input, ``nx``, ``ny`` px/s, optional ``uncertainty``), sorted by ``index``; an index
@@ -622,6 +655,9 @@ class MotionSegmentationPipeline:
         """
         if precomputed_flow is not None:
             precomputed_flow = check_flow(precomputed_flow, source=f"MotionSegmentationPipeline.run: {flow_source}")
+        # Each run starts afresh (no tracks or motion prediction from an earlier run, object ids
+        # from 1): the same stream gives the same labels however often it is run.
+        self.reset()
         seen = [0]
         chunks = _checked_chunks(_as_chunks(source), seen)
         cfg = self.config

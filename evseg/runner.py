@@ -274,15 +274,7 @@ def run_segment_job(job: SegmentJob) -> str:
                 results = _live_windows(live, latencies, dropped)
             else:
                 results = pipe.run(chunks, precomputed_flow=flow, flow_source=str(job.flow_file))
-            for res in results:
-                # Events before this window and not in any earlier one (gaps when stride > window).
-                if res.first_event > writer.n_written:
-                    writer.add_unassigned(res.first_event - writer.n_written)
-                # This window owns its events up to the start of the next window.
-                own = int(np.searchsorted(res.events["t"], res.t0_us + stride_us, side="left"))
-                skip = writer.n_written - res.first_event  # already labelled by an overlapping window
-                if own > skip:
-                    writer.add_labels(res.labels[skip:own])
+            for res in write_window_labels(writer, results, stride_us):
                 writer.add_window(res.t0_us, res.t1_us, res.boxes, res.masks if job.masks else None)
                 if job.video is not None or job.frames is not None:
                     sink.add(label_overlay(res.events, res.labels, res.boxes, rec.sensor_size,
@@ -311,6 +303,34 @@ def run_segment_job(job: SegmentJob) -> str:
         f"{len(ids)} distinct objects, {n_objects / max(n_windows, 1):.2f} objects per window"
         + live + (f"; video {job.video}" if job.video else "") + inferred
     )
+
+
+def write_window_labels(writer, results, stride_us: int):
+    """Yield each window result of ``results`` (in window order, with ``index``,
+    ``first_event``, ``events``, ``labels``, ``t0_us``) after appending to ``writer`` the labels
+    it owns: its events up to the next window's start (``t0_us + stride_us``) that no earlier
+    window labelled, after -1 for events no window covered. The rest of its events belong to
+    the next window, unless that window never comes (dropped by a live run, or the end of
+    the stream): then they keep this window's labels."""
+    pending = None  # (window index, first event, labels) of the events the next window takes
+    for res in results:
+        if pending is not None:
+            if res.index != pending[0] + 1:  # the next window was dropped
+                writer.add_labels(pending[2][: max(res.first_event - pending[1], 0)])
+            pending = None
+        # Events before this window and not in any earlier one (gaps when stride > window).
+        if res.first_event > writer.n_written:
+            writer.add_unassigned(res.first_event - writer.n_written)
+        own = int(np.searchsorted(res.events["t"], res.t0_us + stride_us, side="left"))
+        skip = writer.n_written - res.first_event  # already labelled by an overlapping window
+        if own > skip:
+            writer.add_labels(res.labels[skip:own])
+        at = max(own, skip)
+        if len(res.labels) > at:
+            pending = (res.index, res.first_event + at, res.labels[at:])
+        yield res
+    if pending is not None:
+        writer.add_labels(pending[2])
 
 
 def _live_windows(live, latencies: list[float], dropped: list[int]):

@@ -57,3 +57,31 @@ def undistort_normal_flow(
     hn = np.maximum(np.hypot(hx, hy), 1e-12)
     scale = mag / hn
     return table.xu[r, c], table.yu[r, c], (scale * hx / hn).astype(np.float32), (scale * hy / hn).astype(np.float32)
+
+
+def mask_to_raw(table: UndistortionTable, mask: np.ndarray) -> np.ndarray:
+    """A (height, width) bool mask in undistorted pixels as a mask of the sensor's raw pixels:
+    raw pixel (x, y) is set when its undistorted position (``table.xu``, ``table.yu``, rounded)
+    falls on a set pixel. Undistorted positions off the grid are unset.
+
+    >>> import numpy as np
+    >>> ident = np.meshgrid(np.arange(4.0), np.arange(3.0))
+    >>> table = UndistortionTable(ident[0] + 1, ident[1], *[np.ones((3, 4))] * 4)  # shifted by 1 px
+    >>> m = np.zeros((3, 4), bool); m[1, 2] = True
+    >>> np.argwhere(mask_to_raw(table, m)).tolist()  # raw (row 1, col 1) lands on (1, 2)
+    [[1, 1]]
+    """
+    h, w = mask.shape
+    xi, yi = np.rint(table.xu).astype(np.int64), np.rint(table.yu).astype(np.int64)
+    on = (xi >= 0) & (xi < w) & (yi >= 0) & (yi < h)
+    out = np.zeros_like(mask, dtype=bool)
+    out[on] = mask[yi[on], xi[on]]
+    return out
+
+
+def raw_box(mask: np.ndarray) -> tuple[int, int, int, int] | None:
+    """Inclusive (x0, y0, x1, y1) px box of a bool mask's set pixels; None if none is set."""
+    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+    if not len(rows):
+        return None
+    return int(cols[0]), int(rows[0]), int(cols[-1]), int(rows[-1])

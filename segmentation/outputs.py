@@ -243,15 +243,21 @@ def _join_near_components(comp, labels, x, y, gap_px, edges=None, occlusion_gap_
 def region_box(
     x: np.ndarray, y: np.ndarray, grow_px: float, sensor_size: tuple[int, int] | None
 ) -> tuple[int, int, int, int]:
-    """Inclusive px box (x0, y0, x1, y1) of points grown by ``grow_px``, clipped to the sensor."""
+    """Inclusive px box (x0, y0, x1, y1) of points grown by ``grow_px``, clipped to the sensor
+    (both ends of each side, so it is never inverted: points wholly beyond an edge give a
+    one-pixel side on that edge).
+
+    >>> region_box(np.array([-20.0, -5.0]), np.array([10.0, 12.0]), 0.0, (346, 260))
+    (0, 10, 0, 12)
+    """
     x0 = int(np.floor(x.min() - grow_px))
     y0 = int(np.floor(y.min() - grow_px))
     x1 = int(np.ceil(x.max() + grow_px))
     y1 = int(np.ceil(y.max() + grow_px))
     if sensor_size is not None:
         w, h = sensor_size
-        x0, x1 = max(x0, 0), min(x1, w - 1)
-        y0, y1 = max(y0, 0), min(y1, h - 1)
+        x0, x1 = min(max(x0, 0), w - 1), min(max(x1, 0), w - 1)
+        y0, y1 = min(max(y0, 0), h - 1), min(max(y1, 0), h - 1)
     return x0, y0, x1, y1
 
 

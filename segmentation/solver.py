@@ -349,6 +349,10 @@ def segment_prepared(
         ux, uy = flow_field(models[k : k + 1], xr[nodes], yr[nodes])
         dt_s = (t_ref - graph.t[nodes]) * 1e-6
         px, py = graph.x[nodes] + ux[:, 0] * dt_s, graph.y[nodes] + uy[:, 0] * dt_s
+        if sensor_size is not None and not _any_on_sensor(px, py, sensor_size):
+            # Moved wholly off the sensor by t_ref (a fast object leaving the frame): its outline
+            # is where its events were, not a sliver on the edge with an empty mask.
+            px, py = graph.x[nodes], graph.y[nodes]
         boxes[k] = region_box(px, py, cfg.mask_dilate_px, sensor_size)
         if sensor_size is not None:
             masks[k] = region_mask(px, py, sensor_size, cfg.mask_method, cfg.mask_dilate_px, graph.cell_px)
@@ -511,3 +515,9 @@ def _merge_duplicates(models, data, labels, h, tol_px_s, radius_px, edges, edge_
     if energy(new_labels, data[:, keep], edges, edge_w, h_new) < energy(labels, data, edges, edge_w, h):
         return models[keep], data[:, keep], new_labels, h_new
     return models, data, labels, h
+
+
+def _any_on_sensor(x: np.ndarray, y: np.ndarray, sensor_size: tuple[int, int]) -> bool:
+    """Whether any point (px) rounds to a pixel of the sensor."""
+    w, h = sensor_size
+    return bool(np.any((x > -0.5) & (x < w - 0.5) & (y > -0.5) & (y < h - 0.5)))

@@ -31,3 +31,19 @@ def test_stream_windows_are_views_and_cover_all_events():
     assert sum(len(w) for w in wins) == len(ev)
     assert all(np.shares_memory(w.events, ev) for w in wins if len(w))
     assert stream.duration_us == int(t[-1])
+
+
+@pytest.mark.parametrize("field, values, message", [
+    ("t", [0.000001, 0.000002], r"field 't' = 1e-06 at event 0 is not a whole number \(integer microseconds; "
+                                r"time in seconds: multiply by 1e6 and round\)"),
+    ("x", [3, -1], r"field 'x' = -1 at event 1 is outside \[0, 65535\]"),
+    ("y", [2.5, 1], r"field 'y' = 2.5 at event 0 is not a whole number"),
+])
+def test_make_events_refuses_values_it_would_change(field, values, message):
+    # Casting into the integer fields would truncate (seconds -> 0) or wrap (-1 -> 65535) silently.
+    args = {"x": [1, 2], "y": [1, 1], "t": [10, 20], "p": [1, 0]}
+    args[field] = values
+    with pytest.raises(EventDataError, match=message):
+        make_events(**args)
+    whole = make_events(x=[1.0, 2.0], y=[1, 1], t=np.array([10.0, 20.0]), p=[True, False])
+    assert whole["t"].tolist() == [10, 20] and whole["p"].tolist() == [1, -1]

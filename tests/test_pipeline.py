@@ -774,3 +774,31 @@ def test_run_checks_what_it_is_given(sim):
     shifted = dict(flow, index=flow["index"] + len(ev) // 4)
     with pytest.raises(FormatError, match=rf"my_flow: key 'index' refers to event \d+ but the stream has {len(ev)} events"):
         list(pipe().run(rec.stream, precomputed_flow=shifted, flow_source="my_flow"))
+
+
+def test_each_run_starts_afresh(sim):
+    # A notebook cell run twice: the same labels and object ids, not ids counting on.
+    rec, d = sim
+    flow = load_flow_file(d / "flow.npz")
+    pipe = MotionSegmentationPipeline(PipelineConfig(flow="precomputed"), sensor_size=rec.stream.sensor_size)
+    first = [(r.labels.copy(), dict(r.boxes)) for r in pipe.run(rec.stream, precomputed_flow=flow)]
+    assert any(r[1] for r in first)  # objects were found
+    # Another stream between: the same scene mirrored left to right, whose objects end where
+    # no object of the first stream starts (tracks carried over would not match: new ids).
+    mirrored = rec.stream.events.copy()
+    mirrored["x"] = rec.stream.sensor_size[0] - 1 - mirrored["x"]
+    list(pipe.run(mirrored, precomputed_flow=dict(flow, nx=-flow["nx"])))
+    again = [(r.labels, dict(r.boxes)) for r in pipe.run(rec.stream, precomputed_flow=flow)]
+    assert len(again) == len(first)
+    for (la, ba), (lb, bb) in zip(first, again):
+        np.testing.assert_array_equal(la, lb)
+        assert ba == bb
+
+
+def test_a_calibration_of_another_sensor_is_refused():
+    from evseg.calibration import Calibration
+    from evseg.errors import CalibrationError
+
+    cal = Calibration(K=np.array([[200.0, 0, 160], [0, 200.0, 120], [0, 0, 1]]), D=np.zeros(4), sensor_size=(320, 240))
+    with pytest.raises(CalibrationError, match=r"the calibration is for 320x240 px, the sensor is 190x180"):
+        MotionSegmentationPipeline(PipelineConfig(flow="precomputed"), sensor_size=(190, 180), calibration=cal)

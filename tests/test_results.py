@@ -86,3 +86,35 @@ def test_labels_of_a_sorted_copy_go_back_to_file_order(tmp_path):
             raise KeyboardInterrupt
     r = load_result(path)
     assert r.partial and r.label.tolist() == [0, -1, -1, 30, -1]
+
+
+def test_labels_of_a_window_whose_successor_was_dropped_stand(tmp_path):
+    # 20 ms windows every 10 ms, events every ms: window 1 [10, 30) ms is segmented, window 2
+    # [20, 40) is dropped (a live run falling behind), window 3 [30, 50) is segmented.
+    from types import SimpleNamespace
+
+    from evseg.runner import write_window_labels
+
+    t = np.arange(0, 50_000, 1_000)
+
+    def window(index):
+        t0 = index * 10_000
+        first = int(np.searchsorted(t, t0))
+        ev = np.zeros(int(np.searchsorted(t, t0 + 20_000)) - first, dtype=[("t", "<i8")])
+        ev["t"] = t[first : first + len(ev)]
+        return SimpleNamespace(index=index, first_event=first, events=ev, t0_us=t0,
+                               labels=np.full(len(ev), index, dtype=np.int16))
+
+    path = tmp_path / "r.npz"
+    with ResultWriter(path, n_events=len(t), sensor_size=(2, 2)) as w:
+        for res in write_window_labels(w, [window(1), window(3)], stride_us=10_000):
+            w.add_window(res.t0_us, res.t0_us + 20_000, {})
+    label = load_result(path).label
+    assert (label[:10] == -1).all()  # before window 1
+    assert (label[10:30] == 1).all()  # window 1, and its second half, which dropped window 2 left
+    assert (label[30:50] == 3).all()  # window 3 to the end (no window after it)
+    # Without a drop each window keeps only its first stride.
+    with ResultWriter(path, n_events=len(t), sensor_size=(2, 2)) as w:
+        for res in write_window_labels(w, [window(i) for i in range(5)], stride_us=10_000):
+            w.add_window(res.t0_us, res.t0_us + 20_000, {})
+    assert load_result(path).label.tolist() == [i for i in range(5) for _ in range(10)]

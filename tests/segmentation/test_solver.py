@@ -572,3 +572,33 @@ def test_contrast_sensitive_potts_is_off_on_noisy_flow():
                               sensor_size=s.sensor_size)
     assert np.array_equal(on.node_labels, off.node_labels)
     assert on.energy == off.energy
+
+
+def test_an_object_leaving_the_frame_keeps_a_valid_box():
+    # A fast object (-3000 px/s) seen only in the first 0.8 ms at the left edge: moved to the
+    # window's mid-time it lies wholly off the sensor. Its box is where its events were, never
+    # inverted (x1 < x0), and its mask is not empty.
+    from evseg.segmentation import load_segmentation_config, segment_normal_flow
+
+    rng = np.random.default_rng(3)
+    w, h, n = 346, 260, 8000
+    x, y = rng.uniform(0, w - 1, n).round(), rng.uniform(0, h - 1, n).round()
+    t = rng.integers(0, 10_000, n)
+    v = np.tile([60.0, 0.0], (n, 1))
+    obj = (x < 10) & (np.abs(y - 130) < 40)
+    t[obj] = rng.integers(0, 800, obj.sum())
+    v[obj] = [-3000.0, 0.0]
+    a = rng.uniform(0, 2 * np.pi, n)
+    g = np.stack([np.cos(a), np.sin(a)], 1)
+    s = (g * v).sum(1)
+    keep = np.abs(s) > 5
+    o = np.argsort(t[keep], kind="stable")
+    nf = (g * s[:, None])[keep][o]
+    res = segment_normal_flow(x[keep][o], y[keep][o], t[keep][o].astype(np.int64), nf[:, 0], nf[:, 1],
+                              config=load_segmentation_config("evimo_like"), sensor_size=(w, h))
+    assert len(res.boxes) == 1
+    (box,) = res.boxes.values()
+    assert box[0] <= box[2] and box[1] <= box[3]
+    assert box[0] == 0 and box[2] <= 12 and box[1] >= 85 and box[3] <= 175  # the strip x < 10, |y - 130| < 40
+    (mask,) = res.masks.values()
+    assert mask.any()
