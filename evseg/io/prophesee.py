@@ -272,6 +272,25 @@ def decode_evt2(words: np.ndarray, st: _State, where: str, byte_offset: int) -> 
     return ev, cd
 
 
+def header_of(path: Path, where: str) -> tuple[dict[str, str], int]:
+    """:func:`read_header` of the file at ``path``; errors are prefixed with ``where``."""
+    with open(path, "rb") as f:
+        try:
+            return read_header(f)
+        except FormatError as exc:
+            raise FormatError(f"{where}: {exc}") from None
+
+
+def read_blocks(path: Path, offset: int, block_bytes: int) -> Iterator[tuple[int, bytes]]:
+    """``(byte offset, bytes)`` of consecutive blocks of ``block_bytes`` from ``offset`` to the
+    end of the file (the last block may be shorter)."""
+    with open(path, "rb") as f:
+        f.seek(offset)
+        while buf := f.read(block_bytes):
+            yield offset, buf
+            offset += len(buf)
+
+
 class RawSource:
     """Streaming decoder of one Prophesee ``.raw`` file."""
 
@@ -281,11 +300,7 @@ class RawSource:
         self.calibration = None
         self.t_offset_us = 0
         self._where = where = f"{path}: {format}"
-        with open(path, "rb") as f:
-            try:
-                fields, self._data_offset = read_header(f)
-            except FormatError as exc:
-                raise FormatError(f"{where}: {exc}") from None
+        fields, self._data_offset = header_of(path, where)
         if not fields:
             raise FormatError(f"{where}: no '%' text header at byte offset 0 (not a Prophesee .raw file)")
         enc = encoding_of(fields)
@@ -306,18 +321,9 @@ class RawSource:
         decode = decode_evt2 if self.format == "evt2" else decode_evt3
         dtype = np.dtype("<u4") if self.format == "evt2" else np.dtype("<u2")
         st = _State()
-        offset = self._data_offset
-        with open(self.path, "rb") as f:
-            f.seek(offset)
-            while True:
-                buf = f.read(chunk_events * self._word_bytes)
-                if not buf:
-                    return
-                words = np.frombuffer(buf, dtype=dtype)
-                ev, word = decode(words, st, self._where, offset)
-                base = offset
-                yield Chunk(ev, lambda i, word=word, base=base: f"byte offset {base + self._word_bytes * int(word[i])}")
-                offset += len(buf)
+        for base, buf in read_blocks(self.path, self._data_offset, chunk_events * self._word_bytes):
+            ev, word = decode(np.frombuffer(buf, dtype=dtype), st, self._where, base)
+            yield Chunk(ev, lambda i, word=word, base=base: f"byte offset {base + self._word_bytes * int(word[i])}")
 
     def close(self) -> None:
         pass

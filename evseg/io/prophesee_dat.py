@@ -23,7 +23,7 @@ import numpy as np
 
 from evseg.errors import FormatError
 from evseg.events import EVENT_DTYPE
-from evseg.io.prophesee import read_header
+from evseg.io.prophesee import header_of, read_blocks
 from evseg.io.recording import Chunk
 
 CD_EVENT_TYPES = {0x00: "Event2d", 0x0C: "EventCd"}
@@ -68,11 +68,8 @@ class DatSource:
         self.calibration = None
         self.t_offset_us = 0
         self._where = where = f"{path}: dat"
+        fields, offset = header_of(path, where)
         with open(path, "rb") as f:
-            try:
-                fields, offset = read_header(f)
-            except FormatError as exc:
-                raise FormatError(f"{where}: {exc}") from None
             f.seek(offset)
             type_size = f.read(2)
         if not fields:
@@ -100,17 +97,9 @@ class DatSource:
 
     def chunks(self, chunk_events: int) -> Iterator[Chunk]:
         wraps, last_t = 0, -1
-        offset = self._data_offset
-        with open(self.path, "rb") as f:
-            f.seek(offset)
-            while True:
-                buf = f.read(chunk_events * RECORD.itemsize)
-                if not buf:
-                    return
-                ev, wraps, last_t = decode_records(np.frombuffer(buf, dtype=RECORD), wraps, last_t)
-                base = offset
-                yield Chunk(ev, lambda i, base=base: f"byte offset {base + RECORD.itemsize * int(i)}")
-                offset += len(buf)
+        for base, buf in read_blocks(self.path, self._data_offset, chunk_events * RECORD.itemsize):
+            ev, wraps, last_t = decode_records(np.frombuffer(buf, dtype=RECORD), wraps, last_t)
+            yield Chunk(ev, lambda i, base=base: f"byte offset {base + RECORD.itemsize * int(i)}")
 
     def close(self) -> None:
         pass
