@@ -26,12 +26,22 @@ def object_color(object_id: int) -> tuple[int, int, int]:
     return int(b), int(g), int(r)
 
 
+def auto_scale(height_px: int, target_px: int = 480) -> int:
+    """The smallest integer upscaling that makes a picture of ``height_px`` rows at least
+    ``target_px`` high (at least 1).
+
+    >>> auto_scale(260), auto_scale(128), auto_scale(720)
+    (2, 4, 1)
+    """
+    return max(1, -(-int(target_px) // max(int(height_px), 1)))
+
+
 def label_overlay(
     events: np.ndarray,
     labels: np.ndarray,
     boxes: dict[int, tuple[int, int, int, int]],
     sensor_size: tuple[int, int],
-    scale: int = 2,
+    scale: int | None = None,
     title: str | None = None,
 ) -> np.ndarray:
     """Events of one window drawn on black, coloured by label, with object boxes and ids.
@@ -41,11 +51,15 @@ def label_overlay(
         labels: per event: -1 unassigned (dark grey), 0 background (grey), k >= 1 object k.
         boxes: object id -> (x0, y0, x1, y1) inclusive px.
         sensor_size: (width, height) px.
-        scale: integer upscaling of the picture (boxes and text stay crisp).
+        scale: integer upscaling of the picture (boxes and text stay crisp); None: the
+            smallest that makes it at least 480 px high (2 for 346x260, 4 for 128x128, 1 from
+            480 px on), so that the text stays legible on small and large sensors alike.
     """
     import cv2
 
     w, h = sensor_size
+    if scale is None:
+        scale = auto_scale(h)
     img = np.zeros((h, w, 3), dtype=np.uint8)
     labels = np.asarray(labels)
     for lab in np.unique(labels):
@@ -57,8 +71,9 @@ def label_overlay(
     for oid, (x0, y0, x1, y1) in sorted(boxes.items()):
         c = object_color(int(oid))
         cv2.rectangle(img, (x0 * scale, y0 * scale), ((x1 + 1) * scale - 1, (y1 + 1) * scale - 1), c, 1)
-        cv2.putText(img, f"#{oid}", (x0 * scale, max(10, y0 * scale - 3)), cv2.FONT_HERSHEY_SIMPLEX, 0.4, c, 1,
-                    cv2.LINE_AA)
+        # Above the box, or inside it at the top where the title would cover it.
+        y_text = y0 * scale - 3 if y0 * scale - 3 >= (22 if title else 10) else (y0 + 1) * scale + 12
+        cv2.putText(img, f"#{oid}", (x0 * scale + 1, y_text), cv2.FONT_HERSHEY_SIMPLEX, 0.4, c, 1, cv2.LINE_AA)
     if title:
         cv2.putText(img, title, (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1, cv2.LINE_AA)
     return img
