@@ -84,6 +84,20 @@ def make_events(x, y, t, p) -> np.ndarray:
     return ev
 
 
+def first_off_sensor(events: np.ndarray, sensor_size: tuple[int, int]) -> str | None:
+    """``"event i at (x, y)"`` of the first event off a ``(width, height)`` sensor; None if all
+    lie on it. Two max-reductions when every event is on the sensor (the common case).
+
+    >>> first_off_sensor(make_events([1, 9], [2, 2], [0, 1], [1, 1]), (8, 4))
+    'event 1 at (9, 2)'
+    """
+    w, h = sensor_size
+    if len(events) == 0 or (int(events["x"].max()) < w and int(events["y"].max()) < h):
+        return None
+    i = int(np.flatnonzero((events["x"] >= w) | (events["y"] >= h))[0])
+    return f"event {i} at ({int(events['x'][i])}, {int(events['y'][i])})"
+
+
 def polarity_to_signed(p: np.ndarray) -> np.ndarray:
     """Map polarity in any common encoding (bool, 0/1, -1/+1) to int8 +1/-1."""
     p = np.asarray(p)

@@ -41,7 +41,7 @@ from typing import TYPE_CHECKING, Callable, Iterable, Iterator
 import numpy as np
 
 from evseg.errors import ConfigError, EventDataError
-from evseg.events import EVENT_DTYPE
+from evseg.events import EVENT_DTYPE, first_off_sensor
 from evseg.windows import Window
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -199,7 +199,7 @@ def run_live(
                               name="evseg-live-reader", daemon=True)
     reader.start()
     windows = _LiveWindows(packets, int(cfg.window_us), int(cfg.stride_us or cfg.window_us),
-                           int(pipeline.kept_us), max_lag_us)
+                           int(pipeline.kept_us), max_lag_us, pipeline.sensor_size)
     try:
         if pipeline.overlaps:
             yield from _overlapped(pipeline, windows, clock)
@@ -271,8 +271,10 @@ class _LiveWindows:
     more than ``max_lag_us`` before the newest event that has arrived."""
 
     def __init__(self, packets: "queue.Queue", window_us: int, stride_us: int, kept_us: int,
-                 max_lag_us: int | None) -> None:
+                 max_lag_us: int | None, sensor_size: tuple[int, int] | None = None) -> None:
         self.packets, self.window_us, self.stride_us = packets, window_us, stride_us
+        self.sensor_size = sensor_size
+        self.n_packets = 0
         self.kept_us, self.max_lag_us = kept_us, max_lag_us
         self.buf = np.empty(0, dtype=EVENT_DTYPE)
         self.buf_first = 0  # position in the source of buf[0]
@@ -299,9 +301,15 @@ class _LiveWindows:
                 break
             if isinstance(packet, BaseException):
                 raise packet
+            self.n_packets += 1
             if len(packet) == 0:
                 continue
             _check_packet(packet, new[-1] if new else self.buf)
+            off = None if self.sensor_size is None else first_off_sensor(packet, self.sensor_size)
+            if off is not None:
+                w, h = self.sensor_size
+                raise EventDataError(f"live source: packet {self.n_packets - 1}: {off} (t={int(packet['t'][0])} us "
+                                     f"at its start) is outside the {w}x{h} sensor the pipeline was made for")
             if self.t0 is None:
                 self.t0 = int(packet["t"][0])
             new.append(packet)

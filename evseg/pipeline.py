@@ -37,7 +37,7 @@ import numpy as np
 
 from evseg.calibration import Calibration
 from evseg.errors import ConfigError, EventDataError, EvsegError, FormatError
-from evseg.events import EVENT_DTYPE, EventStream
+from evseg.events import EVENT_DTYPE, EventStream, first_off_sensor
 from evseg.flow_file import WindowFlow, check_flow, load_flow_file, slice_flow  # noqa: F401 (load_flow_file: public here too)
 from evseg.tracking import ObjectTracker
 from evseg.undistortion import UndistortionTable, undistort_normal_flow
@@ -659,7 +659,7 @@ class MotionSegmentationPipeline:
         # from 1): the same stream gives the same labels however often it is run.
         self.reset()
         seen = [0]
-        chunks = _checked_chunks(_as_chunks(source), seen)
+        chunks = _checked_chunks(_as_chunks(source), seen, self.sensor_size)
         cfg = self.config
         needs_context = precomputed_flow is None and cfg.flow != "precomputed"
         history = EventHistory(self.kept_us if needs_context else 0)
@@ -866,10 +866,11 @@ def _as_chunks(source) -> Iterable[np.ndarray]:
     return source
 
 
-def _checked_chunks(chunks: Iterable[np.ndarray], seen: list[int]) -> Iterator[np.ndarray]:
-    """``chunks`` as they are, after checking that each is events sorted by time and that none
-    starts before the previous one ended (a chunk out of order would be dropped unseen by
-    the windowing); counts the events in ``seen[0]``."""
+def _checked_chunks(chunks: Iterable[np.ndarray], seen: list[int],
+                    sensor_size: tuple[int, int]) -> Iterator[np.ndarray]:
+    """``chunks`` as they are, after checking that each is events on the sensor, sorted by
+    time, and that none starts before the previous one ended (a chunk out of order would be
+    dropped unseen by the windowing); counts the events in ``seen[0]``."""
     last_t = None
     for i, chunk in enumerate(chunks):
         if not isinstance(chunk, np.ndarray) or chunk.dtype != EVENT_DTYPE:
@@ -887,6 +888,10 @@ def _checked_chunks(chunks: Iterable[np.ndarray], seen: list[int]) -> Iterator[n
             raise EventDataError(f"MotionSegmentationPipeline.run: chunk {i} starts at t={int(t[0])} us, before "
                                  f"the previous chunk's last event at t={last_t} us; chunks must follow each "
                                  "other in time")
+        off = first_off_sensor(chunk, sensor_size)
+        if off is not None:
+            raise EventDataError(f"MotionSegmentationPipeline.run: chunk {i}: {off} is outside the "
+                                 f"{sensor_size[0]}x{sensor_size[1]} sensor the pipeline was made for")
         last_t = int(t[-1])
         seen[0] += len(chunk)
         yield chunk

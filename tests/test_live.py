@@ -150,6 +150,15 @@ def test_bad_live_input_is_a_clear_error(stream):
     wrong = np.zeros(3, dtype=[("t", "<i8"), ("x", "<i4"), ("y", "<i4"), ("p", "<i4")])
     with pytest.raises(EventDataError, match="a packet must be an event array of dtype"):
         list(run_live(_pipeline(stream), [wrong], max_lag_us=None))
+    off = ev[2000:2100].copy()
+    off["x"][7] = stream.sensor_size[0]  # one column past the sensor
+    w, h = stream.sensor_size
+    with pytest.raises(EventDataError, match=rf"live source: packet 2: event 7 at \({w}, \d+\) \(t=\d+ us at its "
+                                             rf"start\) is outside the {w}x{h} sensor"):
+        list(run_live(_pipeline(stream), [ev[:1000], ev[1000:2000], off], max_lag_us=None))
+    with pytest.raises(EventDataError, match=rf"MotionSegmentationPipeline.run: chunk 1: event 7 at \({w}, \d+\) "
+                                             rf"is outside the {w}x{h} sensor"):
+        list(_pipeline(stream).run([ev[:2000], off]))
     with pytest.raises(ConfigError, match="precomputed"):
         list(run_live(_pipeline(stream, flow="precomputed"), [ev], max_lag_us=None))
     with pytest.raises(ConfigError, match="max_lag_us"):
