@@ -177,9 +177,49 @@ def segment_normal_flow(
             computed for a subset of the events. None: each usable flow counts as one event.
     Returns:
         :class:`SegmentationResult`. Inputs are not modified.
+
+    Raises:
+        EventDataError: arrays of different lengths or not 1-D, a position that is NaN or
+            infinite, a time that is not whole microseconds (seconds would all fall into one
+            microsecond), a negative uncertainty; the message names the argument and the row.
     """
+    _check_window_arrays(x, y, t, nx, ny, uncertainty)
     prepared = prepare_window(x, y, t, nx, ny, uncertainty, config, sensor_size, event_xy)
     return segment_prepared(prepared, previous, tracked_objects)
+
+
+def _check_window_arrays(x, y, t, nx, ny, uncertainty) -> None:
+    """What :func:`segment_normal_flow` needs of its arrays (the pipeline builds them itself)."""
+    from evseg.errors import EventDataError
+
+    arrays = {"x": x, "y": y, "t": t, "nx": nx, "ny": ny, "uncertainty": uncertainty}
+    n = len(np.asarray(x))
+    for name, a in arrays.items():
+        if a is None:
+            continue
+        a = np.asarray(a)
+        if a.ndim != 1 or len(a) != n:
+            raise EventDataError(f"segment_normal_flow: '{name}' has shape {a.shape}, expected ({n},) like 'x'")
+        if not np.issubdtype(a.dtype, np.number):
+            raise EventDataError(f"segment_normal_flow: '{name}' must hold numbers, got dtype {a.dtype}")
+    for name in ("x", "y"):
+        a = np.asarray(arrays[name], dtype=np.float64)
+        if n and not np.isfinite(a).all():
+            i = int(np.flatnonzero(~np.isfinite(a))[0])
+            raise EventDataError(f"segment_normal_flow: '{name}' = {a[i]} at row {i} is not a finite position (px)")
+    t = np.asarray(t)
+    if n and not np.issubdtype(t.dtype, np.integer):
+        whole = np.isfinite(t) & (t == np.round(t))
+        if not whole.all():
+            i = int(np.flatnonzero(~whole)[0])
+            raise EventDataError(f"segment_normal_flow: 't' = {t[i]} at row {i} is not whole microseconds "
+                                 "(time in seconds: multiply by 1e6)")
+    if uncertainty is not None and n:
+        u = np.asarray(uncertainty, dtype=np.float64)
+        if np.any(u < 0):
+            i = int(np.flatnonzero(u < 0)[0])
+            raise EventDataError(f"segment_normal_flow: 'uncertainty' = {u[i]} at row {i} is negative "
+                                 "(larger = less certain, 0 = certain)")
 
 
 def segment_prepared(

@@ -602,3 +602,28 @@ def test_an_object_leaving_the_frame_keeps_a_valid_box():
     assert box[0] == 0 and box[2] <= 12 and box[1] >= 85 and box[3] <= 175  # the strip x < 10, |y - 130| < 40
     (mask,) = res.masks.values()
     assert mask.any()
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"t": "seconds"}, r"'t' = 0.0001 at row 1 is not whole microseconds \(time in seconds: multiply by 1e6\)"),
+    ({"x": "nan"}, r"'x' = nan at row 2 is not a finite position"),
+    ({"uncertainty": "negative"}, r"'uncertainty' = -0.1 at row 3 is negative"),
+    ({"ny": "short"}, r"'ny' has shape \(4,\), expected \(5,\) like 'x'"),
+])
+def test_segment_normal_flow_names_a_bad_argument(change, message):
+    from evseg.errors import EventDataError
+    from evseg.segmentation import segment_normal_flow
+
+    args = {"x": np.arange(5.0), "y": np.zeros(5), "t": np.arange(5) * 100, "nx": np.ones(5), "ny": np.zeros(5),
+            "uncertainty": np.full(5, 0.1)}
+    what = next(iter(change))
+    if change[what] == "seconds":
+        args["t"] = np.arange(5) * 1e-4
+    elif change[what] == "nan":
+        args["x"][2] = np.nan
+    elif change[what] == "negative":
+        args["uncertainty"][3] = -0.1
+    else:
+        args["ny"] = np.zeros(4)
+    with pytest.raises(EventDataError, match=rf"segment_normal_flow: {message}"):
+        segment_normal_flow(**args)
