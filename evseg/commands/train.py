@@ -49,8 +49,14 @@ def run(args: argparse.Namespace) -> int:
 
     from evseg.train.cli import main
 
+    import warnings
+
     try:
-        main([args.subcommand, "--config", config, *rest])
+        with warnings.catch_warnings():
+            # The arguments are sys.argv's own, handed over on purpose: Lightning's warning
+            # against giving both would only confuse.
+            warnings.filterwarnings("ignore", message="LightningCLI's args parameter")
+            main([args.subcommand, "--config", config, *rest])
     except MisconfigurationException as exc:
         # Lightning's word for a setting this machine or run cannot honour (e.g. an
         # accelerator it does not have): the user's to change, not a bug in evseg.
