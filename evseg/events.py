@@ -63,9 +63,7 @@ def make_events(x, y, t, p) -> np.ndarray:
             raise EventDataError(f"make_events: field '{name}' has {len(a)} values, 'x' has {n}")
     # Storing into the integer fields would truncate or wrap silently: time in seconds would all
     # become 0, x = -1 would become 65535.
-    for name, a, lo, hi in (("x", x, 0, 65535), ("y", y, 0, 65535), ("t", t, -(2**63), 2**63 - 1)):
-        if n == 0:
-            break
+    for name, a, lo, hi in (("x", x, 0, 65535), ("y", y, 0, 65535), ("t", t, -(2**63), 2**63 - 1)) if n else ():
         if not (np.issubdtype(a.dtype, np.integer) or np.issubdtype(a.dtype, np.bool_)):
             whole = np.isfinite(a) & (a == np.round(a)) if np.issubdtype(a.dtype, np.number) else np.zeros(n, bool)
             if not whole.all():

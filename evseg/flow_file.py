@@ -107,15 +107,10 @@ def load_flow_file(path: str | Path, n_events: int | None = None,
     ``n_events``: the recording's event count, to check the indices against.
     ``sensor_size``: the recording's (width, height); a file that stores another one (a flow
     of another recording or camera) is refused. Files without the key are not checked."""
+    from evseg.io.numpy_files import require_npz
+
     path = Path(path)
-    try:
-        with open(path, "rb") as f:
-            head = f.read(6)
-    except OSError as exc:
-        raise FormatError(f"{path}: cannot read flow file ({exc.strerror or exc})") from None
-    if not head.startswith(b"PK\x03\x04") and not head.startswith(b"\x93NUMPY"):
-        raise FormatError(f"{path}: not an .npz archive (a flow file is one, with keys index, nx, ny"
-                          f"[, uncertainty]; the file starts with {head[:4]!r})")
+    require_npz(path, "flow file", ", with keys index, nx, ny[, uncertainty]", allow_npy=True)
     try:
         loaded = np.load(path, allow_pickle=False)
     except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:

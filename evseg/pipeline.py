@@ -36,7 +36,7 @@ from typing import Callable, Iterable, Iterator, Protocol
 import numpy as np
 
 from evseg.calibration import Calibration
-from evseg.errors import ConfigError, EventDataError, EvsegError, FormatError
+from evseg.errors import CalibrationError, ConfigError, EventDataError, EvsegError, FormatError
 from evseg.events import EVENT_DTYPE, EventStream, first_off_sensor
 from evseg.flow_file import WindowFlow, check_flow, load_flow_file, slice_flow  # noqa: F401 (load_flow_file: public here too)
 from evseg.tracking import ObjectTracker
@@ -270,8 +270,6 @@ class MotionSegmentationPipeline:
         self.sensor_size = (int(sensor_size[0]), int(sensor_size[1]))
         if calibration is not None and tuple(int(v) for v in calibration.sensor_size) != self.sensor_size:
             # Intrinsics of another camera or resolution would undistort every event wrongly.
-            from evseg.errors import CalibrationError
-
             raise CalibrationError(
                 f"MotionSegmentationPipeline: the calibration is for {calibration.sensor_size[0]}x"
                 f"{calibration.sensor_size[1]} px, the sensor is {self.sensor_size[0]}x{self.sensor_size[1]}")

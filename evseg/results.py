@@ -40,6 +40,7 @@ import numpy as np
 
 from evseg.errors import FormatError
 from evseg.io._atomic import atomic_path
+from evseg.io.numpy_files import require_npz
 
 LABEL_DTYPE = np.dtype("<i2")
 UNASSIGNED = -1
@@ -223,7 +224,7 @@ def _write_npy_from_file(zf: zipfile.ZipFile, key: str, src: Path, dtype: np.dty
 def load_result(path: str | Path) -> SegmentationOutput:
     """Read a ``result.npz`` written by :class:`ResultWriter`."""
     path = Path(path)
-    _check_zip_magic(path, "segmentation result")
+    require_npz(path, "segmentation result")
     try:
         with np.load(path, allow_pickle=False) as z:
             missing = {"label", "window_t0_us", "window_t1_us", "boxes", "sensor_size"} - set(z.files)
@@ -242,15 +243,3 @@ def load_result(path: str | Path) -> SegmentationOutput:
             )
     except (OSError, ValueError, zipfile.BadZipFile) as exc:
         raise FormatError(f"{path}: cannot read segmentation result ({exc})") from None
-
-
-def _check_zip_magic(path: Path, what: str) -> None:
-    """An .npz is a zip archive: say so, rather than numpy's "pickled data" message, when a
-    file of another kind (HDF5, a recording) is given."""
-    try:
-        with open(path, "rb") as f:
-            head = f.read(4)
-    except OSError as exc:
-        raise FormatError(f"{path}: cannot read {what} ({exc.strerror or exc})") from None
-    if head != b"PK\x03\x04":
-        raise FormatError(f"{path}: not an .npz archive (a {what} is one; the file starts with {head!r})")

@@ -4,6 +4,7 @@ through a camera calibration, by table lookup (the pipeline's step 2 with a cali
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -25,6 +26,16 @@ class UndistortionTable:
     j12: np.ndarray
     j21: np.ndarray
     j22: np.ndarray
+
+    @cached_property
+    def nearest_pixel(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(on, flat)``: bool (height, width), whether each raw pixel's undistorted position
+        rounds to a pixel of the grid, and the flat index of that pixel for those that do
+        (computed once per table: :func:`mask_to_raw` runs per object and window)."""
+        h, w = self.xu.shape
+        xi, yi = np.rint(self.xu).astype(np.int64), np.rint(self.yu).astype(np.int64)
+        on = (xi >= 0) & (xi < w) & (yi >= 0) & (yi < h)
+        return on, yi[on] * w + xi[on]
 
     @classmethod
     def from_calibration(cls, calibration: Calibration) -> "UndistortionTable":
@@ -71,11 +82,9 @@ def mask_to_raw(table: UndistortionTable, mask: np.ndarray) -> np.ndarray:
     >>> np.argwhere(mask_to_raw(table, m)).tolist()  # raw (row 1, col 1) lands on (1, 2)
     [[1, 1]]
     """
-    h, w = mask.shape
-    xi, yi = np.rint(table.xu).astype(np.int64), np.rint(table.yu).astype(np.int64)
-    on = (xi >= 0) & (xi < w) & (yi >= 0) & (yi < h)
-    out = np.zeros_like(mask, dtype=bool)
-    out[on] = mask[yi[on], xi[on]]
+    on, flat = table.nearest_pixel
+    out = np.zeros(mask.shape, dtype=bool)
+    out[on] = mask.ravel()[flat]
     return out
 
 

@@ -152,6 +152,15 @@ def resolve_target(kind: str, targets: dict[str, str], name: str):
         raise EvsegError(f"{kind} '{name}' is not available in this build ({exc})") from None
 
 
+def check_table_out(args: argparse.Namespace) -> None:
+    """Check ``--out`` before the run: a run of minutes must not end in an error about where
+    its table goes (nor write it over the ``--model`` it ran)."""
+    if args.out is not None:
+        from evseg.io.output_paths import check_output_path
+
+        check_output_path(args.out, "--out", (), [("the model (--model)", getattr(args, "model", None))])
+
+
 def emit_table(rows: list[dict], out: Path | None, notes: tuple[str, ...] = ()) -> None:
     """Print the machine line, ``notes`` (one line each, e.g. the model evaluated) and the
     table; also write them to ``out`` (atomically)."""
@@ -169,10 +178,6 @@ def run(args: argparse.Namespace) -> int:
     if args.repeats < 1:
         raise EvsegError(f"--repeats must be at least 1, got {args.repeats}")
     fn = resolve_target("benchmark", TARGETS, args.target)
-    if args.out is not None:
-        from evseg.io.output_paths import check_output_path
-
-        # A run of minutes must not end in an error about where its table goes.
-        check_output_path(args.out, "--out", (), [("the model (--model)", getattr(args, "model", None))])
+    check_table_out(args)
     emit_table(fn(repeats=args.repeats, quick=args.quick, **model_options(args, MODEL_TARGETS)), args.out)
     return 0

@@ -12,7 +12,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from evseg.commands.bench import emit_table, model_options, resolve_target
+from evseg.commands.bench import check_table_out, emit_table, model_options, resolve_target
 from evseg.errors import EvsegError
 
 HELP = "evaluate accuracy on held-out simulated scenes and write a markdown table"
@@ -111,11 +111,7 @@ def run(args: argparse.Namespace) -> int:
     if args.overrides:
         options["overrides"] = _only_for(args.target, "--set", OVERRIDES_TARGETS, parse_overrides(args.overrides),
                                          "it segments nothing")
-    if args.out is not None:
-        from evseg.io.output_paths import check_output_path
-
-        # A run of minutes must not end in an error about where its table goes.
-        check_output_path(args.out, "--out", (), [("the model (--model)", getattr(args, "model", None))])
+    check_table_out(args)
     # Tables of several trained models side by side must say which is which.
     notes = (f"normal-flow model: {args.model}",) if "model_path" in options else ()
     emit_table(fn(quick=args.quick, **options), args.out, notes)

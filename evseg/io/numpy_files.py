@@ -304,3 +304,23 @@ def write_npz(stream: EventStream, path: str | Path) -> Path:
     return write_npz_chunks(
         [stream.events], path, lambda: (stream.sensor_size, stream.t_offset_us, stream.calibration)
     )
+
+
+NPZ_MAGIC = b"PK\x03\x04"
+NPY_MAGIC = b"\x93NUMPY"
+
+
+def require_npz(path: Path, what: str, hint: str = "", allow_npy: bool = False) -> None:
+    """Raise :class:`~evseg.errors.FormatError` naming ``path`` when it cannot be read or is not
+    an .npz archive (or, with ``allow_npy``, an .npy file, which the caller refuses in its own
+    words), rather than numpy's "pickled data" message for an HDF5 file or a recording.
+    ``what``: the kind of file expected ("segmentation result"); ``hint``: more about it."""
+    from evseg.errors import FormatError
+
+    try:
+        with open(path, "rb") as f:
+            head = f.read(len(NPY_MAGIC))
+    except OSError as exc:
+        raise FormatError(f"{path}: cannot read {what} ({exc.strerror or exc})") from None
+    if not head.startswith(NPZ_MAGIC) and not (allow_npy and head.startswith(NPY_MAGIC)):
+        raise FormatError(f"{path}: not an .npz archive (a {what} is one{hint}; the file starts with {head[:4]!r})")

@@ -74,7 +74,7 @@ class DatSource:
             type_size = f.read(2)
         if not fields:
             raise FormatError(f"{where}: no '%' text header at byte offset 0 (not a Prophesee .dat file)")
-        version = fields.get("version", "2").split()[0] if fields.get("version") else "2"
+        version = (fields.get("version") or "2").split()[0]
         if version != "2":
             raise FormatError(f"{where}: header field 'Version' is {version}; evseg reads DAT version 2")
         if len(type_size) < 2:
