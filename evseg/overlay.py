@@ -6,6 +6,7 @@ can go straight to ``cv2.imwrite`` or a ``cv2.VideoWriter``.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +18,8 @@ UNASSIGNED_BGR = (60, 60, 60)
 
 
 def object_color(object_id: int) -> tuple[int, int, int]:
-    """A distinct, stable BGR colour per object id (golden-angle hue steps)."""
+    """A distinct, stable BGR colour per object id (golden-angle hue steps); the same colour,
+    in RGB order, as row ``object_id - 1`` of :func:`evseg.visualize.label_palette`."""
     import cv2
 
     hue = int((object_id * 0.618033988749895 % 1.0) * 180)
@@ -89,7 +91,9 @@ class VideoSink:
     def __init__(self, video: Path | None = None, frames_dir: Path | None = None, fps: float = 25.0):
         self.video = Path(video) if video is not None else None
         self.frames_dir = Path(frames_dir) if frames_dir is not None else None
-        self.fps = fps
+        if not (isinstance(fps, (int, float)) and math.isfinite(fps) and fps > 0):
+            raise EvsegError(f"the video's frame rate must be a positive number of frames per second, got {fps}")
+        self.fps = float(fps)
         self._writer = None
         self._tmp: Path | None = None
         self._n = 0

@@ -51,6 +51,7 @@ class SegmentJob:
     max_lag_ms: float = 20.0
     masks: bool = False
     video: Path | None = None
+    video_fps: float = 25.0
     frames: Path | None = None
     progress: bool = True
 
@@ -76,6 +77,8 @@ def build_pipeline_config(job: SegmentJob):
     if job.threads is not None and job.threads < 1:
         raise ConfigError(f"--threads must be at least 1, got {job.threads}")
     _check_flow_options(job)
+    if not (math.isfinite(job.video_fps) and job.video_fps > 0):
+        raise ConfigError(f"--fps must be a positive number, got {job.video_fps}")
     if job.min_track_windows < 1:
         raise ConfigError(f"--min-track-windows must be >= 1, got {job.min_track_windows}")
     if job.tracked_max_targets is not None and job.tracked_max_targets < 0:
@@ -243,7 +246,7 @@ def run_segment_job(job: SegmentJob) -> str:
         writer = ResultWriter(job.out, None, rec.sensor_size, config_yaml(cfg), with_masks=job.masks)
         origin = span[0] if span is not None else None  # bar zero: first event, else first window
         # The video closes after the result: a video that fails to finish costs no labels.
-        with pipe, VideoSink(job.video, job.frames) as sink, _closing(writer, lambda: n_windows > 0), \
+        with pipe, VideoSink(job.video, job.frames, fps=job.video_fps) as sink, _closing(writer, lambda: n_windows > 0), \
                 tqdm(**_progress_bar_kwargs(span), disable=not job.progress) as bar:
             seen = [0]
 

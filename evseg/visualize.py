@@ -24,9 +24,15 @@ BACKGROUND_RGB = (200, 200, 200)
 
 
 def label_palette(n: int) -> np.ndarray:
-    """uint8 (n, 3) RGB colours for object labels 1..n (golden-angle hues: neighbours differ)."""
-    hue = (np.arange(n) * 0.618033988749895 * 180) % 180
-    hsv = np.stack([hue, np.full(n, 230), np.full(n, 235)], -1).astype(np.uint8)[None]
+    """uint8 (n, 3) RGB colours for object labels 1..n (golden-angle hues: neighbours differ).
+
+    Row ``k - 1`` is object ``k``'s colour, the same as in the segmentation overlays
+    (:func:`evseg.overlay.object_color`, which gives it in BGR order), so an object has one
+    colour in every picture.
+    """
+    ids = np.arange(1, n + 1)
+    hue = ((ids * 0.618033988749895 % 1.0) * 180).astype(np.int64)
+    hsv = np.stack([hue, np.full(n, 230), np.full(n, 255)], -1).astype(np.uint8)[None]
     return cv2.cvtColor(hsv, cv2.COLOR_HSV2RGB)[0]
 
 

@@ -49,3 +49,13 @@ def test_save_rgb_writes_rgb_order(tmp_path):
     vis.save_rgb(tmp_path / "r.png", img)
     back = cv2.imread(str(tmp_path / "r.png"))  # BGR
     np.testing.assert_array_equal(back[0, 0], [0, 0, 255])
+
+
+def test_palette_matches_the_overlay_colour_of_each_object():
+    # An object must keep one colour across the simulator preview (RGB) and the
+    # segmentation overlay (BGR): label_palette row k-1 is object_color(k) reversed.
+    from evseg.overlay import object_color
+
+    pal = vis.label_palette(40)
+    for k in range(1, 41):
+        assert tuple(int(c) for c in pal[k - 1]) == object_color(k)[::-1]

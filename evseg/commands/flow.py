@@ -59,6 +59,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--video", type=Path, default=None, help="also write a colour-wheel flow video (.mp4)")
     p.add_argument("--max-px-s", type=float, default=None,
                    help="flow speed shown at full brightness in the video (default: 95th percentile)")
+    p.add_argument("--fps", type=float, default=None,
+                   help="frame rate of --video, one frame per slice (default: real time, at most 60)")
     p.add_argument("--format", default=None, help="override format detection")
     p.add_argument("--topic", default=None, help="ROS bag topic of the event messages (default: the only one)")
     p.add_argument("--sensor-size", default=None, help="WIDTHxHEIGHT when the file has none")
@@ -130,6 +132,11 @@ def run(args: argparse.Namespace) -> int:
     check_output_path(args.out, "--out", (".npz",), inputs)
     if args.video is not None:
         check_output_path(args.video, "--video", (".mp4",), inputs)
+    if args.fps is not None:
+        if args.video is None:
+            raise EvsegError("--fps sets the frame rate of --video: give --video too")
+        if not (math.isfinite(args.fps) and args.fps > 0):
+            raise EvsegError(f"--fps must be a positive number, got {args.fps}")
     est, info = _estimator(args)
     sensor = parse_sensor_size(args.sensor_size) if args.sensor_size else None
     t_start = time.perf_counter()
@@ -190,7 +197,7 @@ def run(args: argparse.Namespace) -> int:
                    window_us=window_us, method=info["method"], config=info)
     if args.video is not None:
         cell = args.cell_px if args.targets == "cell" else 1
-        _write_video(args.video, frames, sensor_size, window_us, args.max_px_s, cell)
+        _write_video(args.video, frames, sensor_size, window_us, args.max_px_s, cell, args.fps)
     valid = float(np.mean(flow.valid)) if len(flow) else 0.0
     print(
         f"{args.out}: {len(flow)} normal flows ({valid:.1%} valid) for {n_events} events, "
@@ -199,7 +206,8 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _write_video(path: Path, frames, sensor_size, window_us: int, max_px_s: float | None, cell_px: int = 1) -> None:
+def _write_video(path: Path, frames, sensor_size, window_us: int, max_px_s: float | None, cell_px: int = 1,
+                 fps: float | None = None) -> None:
     """One frame per slice: flow colours at the target pixels (filling each target's cell),
     colour-wheel legend, time."""
     import cv2
@@ -216,7 +224,8 @@ def _write_video(path: Path, frames, sensor_size, window_us: int, max_px_s: floa
     w, h = sensor_size
     scale = max(1, int(np.ceil(360 / max(h, 1))))  # small sensors are enlarged for viewing
     legend = color_wheel_legend(size=min(96, max(48, h * scale // 3)), max_px_s=max_px_s)
-    fps = float(min(60.0, max(1.0, 1e6 / window_us)))
+    if fps is None:
+        fps = float(min(60.0, max(1.0, 1e6 / window_us)))  # real time where players keep up
     size = (w * scale, h * scale)
     with atomic_path(path) as tmp:
         tmp_mp4 = tmp.with_name(tmp.name + ".mp4")  # OpenCV picks the container from the suffix

@@ -82,6 +82,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "dropped to catch up (default 20)")
     p.add_argument("--masks", action="store_true", help="also store dense object masks in the result")
     p.add_argument("--video", type=Path, default=None, help="write an overlay video (.mp4)")
+    p.add_argument("--fps", type=float, default=None,
+                   help="frame rate of --video, one frame per window (default 25: 0.25x real time with 10 ms "
+                        "strides)")
     p.add_argument("--frames", type=Path, default=None, help="write one overlay PNG per window here")
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
 
@@ -93,6 +96,8 @@ def run(args: argparse.Namespace) -> int:
     for option, value in (("--speed", args.speed), ("--max-lag-ms", args.max_lag_ms)):
         if value is not None and not args.realtime:
             raise ConfigError(f"{option} sets the replay of --realtime: give --realtime too")
+    if args.fps is not None and args.video is None:
+        raise ConfigError("--fps sets the frame rate of --video: give --video too")
 
     job = SegmentJob(
         recording=args.recording,
@@ -124,6 +129,7 @@ def run(args: argparse.Namespace) -> int:
         max_lag_ms=20.0 if args.max_lag_ms is None else args.max_lag_ms,
         masks=args.masks,
         video=args.video,
+        video_fps=25.0 if args.fps is None else args.fps,
         frames=args.frames,
         progress=not args.no_progress,
     )

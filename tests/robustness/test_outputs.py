@@ -90,6 +90,34 @@ def test_a_video_that_fails_at_the_end_keeps_the_result(recording, tmp_path, cap
     assert not r.partial and len(r.window_t0_us) == 4  # every window of the 40 ms recording
 
 
+def test_video_frame_rate_is_the_users_choice(recording, tmp_path, capsys):
+    import cv2
+
+    rec, flow = recording
+    video = tmp_path / "v.mp4"
+    rc, err = _run(capsys, "segment", str(rec), "--flow", str(flow), "--out", str(tmp_path / "r.npz"),
+                   "--video", str(video), "--fps", "10")
+    assert rc == 0, err
+    cap = cv2.VideoCapture(str(video))
+    fps, n = cap.get(cv2.CAP_PROP_FPS), int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+    cap.release()
+    assert fps == pytest.approx(10.0) and n == 4  # one frame per window of the 40 ms recording
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--fps", "10"], "--fps sets the frame rate of --video: give --video too"),
+    (["--fps", "0", "--video", "v.mp4"], "--fps must be a positive number, got 0.0"),
+    (["--fps", "nan", "--video", "v.mp4"], "--fps must be a positive number, got nan"),
+])
+@pytest.mark.parametrize("command", ["segment", "flow"])
+def test_bad_frame_rates_are_one_line_errors(command, extra, message, recording, tmp_path, capsys):
+    rec, _ = recording
+    extra = [str(tmp_path / a) if a.endswith(".mp4") else a for a in extra]
+    rc, err = _run(capsys, command, str(rec), "--out", str(tmp_path / "r.npz"), *extra)
+    assert rc == 2 and len(err) == 1 and message in err[0], err
+    assert not (tmp_path / "r.npz").exists()
+
+
 @pytest.fixture()
 def unsorted(tmp_path, sim_files):
     """The simulated recording with a block of 1,000 events reversed in time, as .npy files

@@ -90,6 +90,11 @@ def test_flow_baseline_all_targets_and_video(recording, tmp_path):
     cap.release()
     assert ok and n_frames == 5  # 50 ms in 10 ms slices (the default)
     assert frame.shape[0] >= 360  # small sensors are enlarged
+    assert cv2.VideoCapture(str(video)).get(cv2.CAP_PROP_FPS) == pytest.approx(60.0)  # 100 slices/s, capped
+    slow = tmp_path / "slow.mp4"
+    assert main(["flow", str(path), "--out", str(tmp_path / "c.npz"), "--baseline", "--video", str(slow),
+                 "--fps", "5", "--no-progress"]) == 0
+    assert cv2.VideoCapture(str(slow)).get(cv2.CAP_PROP_FPS) == pytest.approx(5.0)
 
 
 def test_flow_option_errors_are_user_errors(recording, tmp_path, capsys):
