@@ -30,6 +30,7 @@ class SegmentJob:
     calib: Path | None = None
     calib_camera: str | None = None
     sort: bool = False
+    time_unit: str | None = None
     config: str | None = None
     window_ms: float = 10.0
     stride_ms: float | None = None
@@ -213,7 +214,7 @@ def run_segment_job(job: SegmentJob) -> str:
     calibration = load_calibration(job.calib, job.calib_camera) if job.calib is not None else None
     sensor_size = parse_sensor_size(job.sensor_size) if isinstance(job.sensor_size, str) else job.sensor_size
     with open_recording(job.recording, format=job.format, topic=job.topic, sensor_size=sensor_size,
-                        sort=job.sort) as rec:
+                        sort=job.sort, time_unit=job.time_unit) as rec:
         inferred = ""
         if rec.sensor_size is None:
             # As `evseg flow`: the size of the pixel grid the events use (one extra pass).

@@ -64,6 +64,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--format", default=None, help="override format detection")
     p.add_argument("--topic", default=None, help="ROS bag topic of the event messages (default: the only one)")
     p.add_argument("--sensor-size", default=None, help="WIDTHxHEIGHT when the file has none")
+    p.add_argument("--time-unit", choices=["s", "us"], default=None,
+                   help="text/csv only: unit of the time column (default: s if any of the first 1,000 times has a "
+                        "decimal point, else us)")
     p.add_argument("--sort", action="store_true",
                    help="sort events by time first (loads the whole recording; for files whose time goes "
                         "back); 'index' still counts events in file order")
@@ -143,7 +146,7 @@ def run(args: argparse.Namespace) -> int:
     parts: list[NormalFlow] = []
     frames: list[tuple[np.ndarray, NormalFlow]] = []
     with open_recording(args.recording, format=args.format, topic=args.topic, sensor_size=sensor,
-                        sort=args.sort) as rec:
+                        sort=args.sort, time_unit=args.time_unit) as rec:
         if rec.sensor_size is None:
             # Unknown sensor size: infer it from the whole file first (one extra pass).
             for _ in rec.chunks():

@@ -26,6 +26,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sensor-size", default=None, help="WIDTHxHEIGHT when the file has none")
     p.add_argument("--sort", action="store_true",
                    help="sort events by time first (loads the whole recording; for files whose time goes back)")
+    p.add_argument("--time-unit", choices=["s", "us"], default=None,
+                   help="text/csv only: unit of the time column (default: s if any of the first 1,000 times has a "
+                        "decimal point, else us)")
     p.add_argument("--calib", type=Path, default=None,
                    help="calibration YAML (ROS camera_info / EMSGC, or a Kalibr camchain)")
     p.add_argument("--calib-camera", default=None, metavar="NAME",
@@ -108,6 +111,7 @@ def run(args: argparse.Namespace) -> int:
         calib=args.calib,
         calib_camera=args.calib_camera,
         sort=args.sort,
+        time_unit=args.time_unit,
         config=args.config,
         window_ms=args.window_ms,
         stride_ms=args.stride_ms,

@@ -67,7 +67,8 @@ def open_recording(
             decode to fewer events except in dense vector bursts).
         sort: accept unsorted timestamps and sort them (loads the whole recording).
         time_unit: text/csv only: ``"s"`` or ``"us"`` for the time column (default: seconds
-            when the first time value has a decimal point or exponent, else microseconds).
+            when any of the first 1,000 time values has a decimal point or exponent, else
+            microseconds, and then a later time with a fraction is an error).
     """
     from evseg.io.registry import open_source
 

@@ -127,6 +127,13 @@ def detect_format(path: str | Path) -> str:
     by_magic = _by_magic(head)
     if by_magic == "raw (no encoding in header)" and suffix == ".dat":
         by_magic = "dat"  # a DAT header without its (mandatory) 'Data file containing' line
+    elif by_magic == "raw (no encoding in header)" and by_suffix == ["text"] and _looks_like_text(head):
+        by_magic = None  # a text file whose first line is a '%' comment, not a Prophesee header
+    if by_magic == "raw (no encoding in header)":
+        raise FormatError(
+            f"{path}: starts with a '%' header like a Prophesee .raw file, but no header line names its "
+            "encoding ('% evt 2.0', '% format EVT3;...'); pass --format evt2 or evt3 (format=...)"
+        )
     if by_magic is not None and by_magic not in FORMATS:
         raise FormatError(
             f"{path}: Prophesee .raw header names encoding '{by_magic}', which evseg does not read "
@@ -145,6 +152,9 @@ def detect_format(path: str | Path) -> str:
     if by_suffix:
         spec = next((FORMATS[n] for n in by_suffix if FORMATS[n].magic), FORMATS[by_suffix[0]])
         expected = [SQLITE_MAGIC, MCAP_MAGIC] if spec.name == "rosbag2" else [spec.magic]
+        if any(m and head.startswith(m) for m in expected):
+            raise FormatError(f"{path}: the {'/'.join(by_suffix)} header is cut short or damaged "
+                              f"({path.stat().st_size} bytes in the file)")
         raise FormatError(
             f"{path}: not a valid {'/'.join(by_suffix)} file: bad magic bytes at offset 0 "
             f"(expected {' or '.join(repr(m) for m in expected)}, got {head[:len(expected[0]) or 8]!r})"

@@ -2,16 +2,18 @@
 
 Layout:
 
-* optional comment lines starting with ``#`` and blank lines (skipped everywhere);
+* optional comment lines starting with ``#`` or ``%`` and blank lines (skipped everywhere);
 * optional first line ``width height`` (two integers): the sensor size;
 * optional csv header naming the columns (``t``/``ts``/``timestamp``/``time``, ``x``, ``y``,
   ``p``/``pol``/``polarity``/``on``; a ``_us`` or ``_s`` suffix on the time column sets its
   unit); without a header the columns are ``t x y p``;
 * one event per line, separated by whitespace or commas (decided by the first data line).
 
-Time unit: seconds when the first time value has a decimal point or exponent, microseconds
-otherwise (``time_unit=`` overrides). Seconds are converted with ``rint(t * 1e6)``, exact to
-the microsecond for ``|t| < 2**31`` s (float64 keeps 0.25 us there). Polarity 0/-1 is OFF.
+Time unit: seconds when any of the first 1,000 time values has a decimal point or exponent,
+microseconds otherwise (``time_unit=`` or a ``_us`` / ``_s`` header suffix overrides). A guess
+of microseconds that a later line contradicts (a time with a fraction) is an error naming the
+line, never a silent rounding. Seconds are converted with ``rint(t * 1e6)``, exact to the
+microsecond for ``|t| < 2**31`` s (float64 keeps 0.25 us there). Polarity 0/-1 is OFF.
 
 Reading is chunked: blocks of ``chunk_events`` lines parsed by numpy; error messages give the
 line number.
@@ -40,6 +42,18 @@ _ALIASES = {
 }
 
 
+_UNIT_SAMPLE_LINES = 1000
+"""Data lines whose time column decides seconds vs microseconds when nothing else does."""
+
+
+def _has_fraction_syntax(toks: list[bytes], column: int) -> bool:
+    """Whether the time token is written with a decimal point or an exponent."""
+    if column >= len(toks):
+        return False
+    tok = toks[column].strip().lower()
+    return b"." in tok or b"e" in tok
+
+
 def _is_number(tok: bytes) -> bool:
     try:
         float(tok)
@@ -65,6 +79,7 @@ class TextSource:
         self._ncols = 4
         self._delimiter: str | None = None
         self._unit = time_unit
+        self._unit_guessed = False  # microseconds guessed from the first lines: checked on every line
         self._data_start = 0  # number of lines before the first data line
         self._scan_header()
 
@@ -73,7 +88,7 @@ class TextSource:
         with open(self.path, "rb") as f:
             for n, line in enumerate(f, start=1):
                 s = line.strip()
-                if s and not s.startswith(b"#"):
+                if s and not s.startswith((b"#", b"%")):
                     yield n, s
 
     def _scan_header(self) -> None:
@@ -105,8 +120,13 @@ class TextSource:
                 f"{line[:80]!r}"
             )
         if self._unit is None:
-            t_tok = toks[self._columns[0]].strip().lower()
-            self._unit = "s" if (b"." in t_tok or b"e" in t_tok) else "us"
+            # One line is not enough: a file written with %g starts "0 x y p" in seconds.
+            sample = itertools.islice(itertools.dropwhile(lambda nl: nl[0] <= self._data_start, self._lines()),
+                                      _UNIT_SAMPLE_LINES)
+            seconds = any(_has_fraction_syntax(ln.split(b",") if self._delimiter else ln.split(), self._columns[0])
+                          for _, ln in sample)
+            self._unit = "s" if seconds else "us"
+            self._unit_guessed = not seconds
 
     def _parse_column_names(self, n: int, line: bytes) -> None:
         try:
@@ -182,6 +202,15 @@ class TextSource:
         if len(bad):
             i = int(bad[0])
             raise FormatError(f"{self._where}: line {numbers[i]}: field 'p' = {p[i]} is not 0, 1 or -1")
+        if self._unit_guessed:
+            bad = np.flatnonzero(t != np.floor(t))
+            if len(bad):
+                i = int(bad[0])
+                raise FormatError(
+                    f"{self._where}: line {numbers[i]}: field 't' = {float(t[i])!r} has a fraction, but the first "
+                    f"{_UNIT_SAMPLE_LINES} times are whole numbers, so the time unit was taken as microseconds; "
+                    "pass --time-unit s (time_unit='s') if the times are seconds, --time-unit us to round them"
+                )
         t_us = t * 1e6 if self._unit == "s" else t
         bad = np.flatnonzero(np.abs(t_us) > 2**62)
         if len(bad):

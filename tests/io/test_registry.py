@@ -64,5 +64,13 @@ def test_empty_missing_directory_and_garbage(tmp_path):
 def test_raw_without_encoding_line(tmp_path):
     p = tmp_path / "a.raw"
     p.write_bytes(b"% date 2020\n" + bytes(8))
-    with pytest.raises(FormatError, match="names encoding 'raw \\(no encoding in header\\)'.*--format evt2 or evt3"):
+    with pytest.raises(FormatError, match="no header line names its encoding.*--format evt2 or evt3"):
+        detect_format(p)
+
+
+def test_raw_header_cut_short_says_so(tmp_path):
+    p = tmp_path / "cut.raw"
+    p.write_bytes(b"% camera_integrator_name Prophesee\n% evt 3.0\n% format EVT3;he")
+    p.write_bytes(p.read_bytes()[:20])
+    with pytest.raises(FormatError, match=r"cut.raw: the evt2/evt3 header is cut short or damaged \(20 bytes"):
         detect_format(p)

@@ -150,3 +150,45 @@ def test_comment_and_blank_lines_inside_blocks(tmp_path):
     q = _write(tmp_path, "d.txt", "64 48\n0.1 1 1 1\n\n0.2 2 2 0\n0.3 99 3 1\n")
     with pytest.raises(EventDataError, match=r"field 'x' = 99 at event 2 \(line 5\)"):
         read_events(q)
+
+
+def test_seconds_written_with_g_format_are_seconds(tmp_path):
+    # "%g" writes the first time (0 after subtracting the start) without a decimal point: the
+    # unit must come from more than the first line, or every later time rounds to 0 us.
+    p = _write(tmp_path, "g.txt", "0 1 1 1\n0.0499657 2 2 0\n0.1 3 3 1\n")
+    assert read_events(p).events["t"].tolist() == [0, 49966, 100000]
+
+
+def test_a_fraction_after_the_sampled_lines_is_an_error_not_a_rounding(tmp_path):
+    from evseg.io import text
+
+    lines = [f"{i} 1 1 1" for i in range(text._UNIT_SAMPLE_LINES)] + ["1000.5 1 1 0"]
+    p = _write(tmp_path, "late.txt", "\n".join(lines) + "\n")
+    with pytest.raises(FormatError, match=r"late.txt: text: line 1001: field 't' = 1000.5 has a fraction.*"
+                                          r"--time-unit s"):
+        read_events(p)
+    # Said by the user, microseconds are rounded as asked.
+    assert read_events(p, time_unit="us").events["t"][-1] == 1000  # rint(1000.5): round half to even
+
+
+def test_percent_comment_lines_are_skipped(tmp_path):
+    p = _write(tmp_path, "m.txt", "% exported by a MATLAB script\n0.1 1 1 1\n% more\n0.2 2 2 0\n")
+    assert read_events(p).events["t"].tolist() == [100000, 200000]
+
+
+def test_segment_and_flow_take_the_time_unit(tmp_path, capsys):
+    from evseg.cli import main
+
+    # Whole-number seconds: read as microseconds unless told (1 us apart: one window).
+    lines = [f"{i} {i % 20} {i % 10} {i % 2}" for i in range(3)]
+    p = _write(tmp_path, "sec.txt", "20 10\n" + "\n".join(lines) + "\n")
+    for command in ("segment", "flow"):
+        out = tmp_path / f"{command}.npz"
+        argv = [command, str(p), "--out", str(out), "--time-unit", "s", "--no-progress"]
+        if command == "segment":
+            argv += ["--flow-method", "planefit"]
+        else:
+            argv += ["--baseline"]
+        assert main(argv) == 0, capsys.readouterr().err
+    r = np.load(tmp_path / "segment.npz")
+    assert r["window_t0_us"][-1] == 2_000_000 and len(r["label"]) == 3  # the last event at 2 s
