@@ -72,12 +72,27 @@ class Calibration:
     model: str = "radtan"
 
     def __post_init__(self) -> None:
+        if isinstance(self.model, str) and self.model.lower() in _MODEL_NAMES and self.model not in DISTORTION_MODELS:
+            # plumb_bob, fisheye, ...: the names ROS, Kalibr and OpenCV write for the two models.
+            if self.model.lower() == "none" and np.any(np.asarray(self.D, dtype=np.float64) != 0):
+                raise CalibrationError(f"distortion model 'none' but D = {np.ravel(self.D).tolist()} is not zero")
+            object.__setattr__(self, "model", _MODEL_NAMES[self.model.lower()])
         K = np.asarray(self.K, dtype=np.float64)
         D = np.asarray(self.D, dtype=np.float64).ravel()
         if K.shape != (3, 3):
             raise CalibrationError(f"camera matrix K must be 3x3, got shape {K.shape}")
         if not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
             raise CalibrationError(f"camera matrix K needs finite positive fx, fy; got {K.tolist()}")
+        if K[1, 0] != 0 or K[2, 0] != 0 or K[2, 1] != 0 or K[2, 2] != 1:
+            # A transposed (column-major) K or one with a zero last row undistorts every event
+            # wrongly without any other sign.
+            raise CalibrationError(
+                f"camera matrix K must be [[fx, s, cx], [0, fy, cy], [0, 0, 1]] (row-major), got {K.tolist()}")
+        w, h = (int(v) for v in self.sensor_size)
+        if not (0 <= K[0, 2] <= w and 0 <= K[1, 2] <= h):
+            raise CalibrationError(
+                f"principal point (cx, cy) = ({K[0, 2]:g}, {K[1, 2]:g}) px lies outside the {w}x{h} sensor: "
+                "K of another resolution?")
         if self.model not in DISTORTION_MODELS:
             raise CalibrationError(f"distortion model must be one of {', '.join(DISTORTION_MODELS)}, got {self.model!r}")
         if len(D) not in _N_COEFFS[self.model]:
@@ -172,7 +187,9 @@ def _coefficients(D: np.ndarray, model: str, name: str, path: str, declared: str
         if np.any(D != 0):
             raise CalibrationError(f"{path}: distortion model 'none' but field '{name}' = {D.tolist()} is not zero")
         return np.zeros(4)
-    if len(D) not in _N_COEFFS[model] or (model == "radtan" and len(D) == 0):
+    if model == "radtan" and len(D) == 0:
+        return np.zeros(4)  # ROS: an empty D means no distortion
+    if len(D) not in _N_COEFFS[model]:
         counts = " or ".join(str(n) for n in _N_COEFFS[model] if n)
         raise CalibrationError(f"{path}: field '{name}' needs {counts} numbers for {model} distortion, got {D.size}")
     return D

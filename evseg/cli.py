@@ -49,7 +49,8 @@ def build_parser() -> argparse.ArgumentParser:
             description=(mod.__doc__ or mod.HELP).strip(),
             formatter_class=argparse.ArgumentDefaultsHelpFormatter,
         )
-        p.add_argument("--debug", action="store_true", help="show full tracebacks on errors")
+        # SUPPRESS: not given after the command, the flag keeps what was given before it.
+        p.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help="show full tracebacks on errors")
         mod.add_arguments(p)
         p.set_defaults(_run=mod.run)
     return parser

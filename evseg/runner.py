@@ -216,6 +216,10 @@ def run_segment_job(job: SegmentJob) -> str:
     with open_recording(job.recording, format=job.format, topic=job.topic, sensor_size=sensor_size,
                         sort=job.sort, time_unit=job.time_unit) as rec:
         inferred = ""
+        if calibration is not None:
+            # A file without a sensor size takes the calibration's (its events are checked
+            # against it), not max + 1 of its events, which would refuse the calibration.
+            rec.assume_sensor_size(calibration.sensor_size, "calibration")
         if rec.sensor_size is None:
             # As `evseg flow`: the size of the pixel grid the events use (one extra pass).
             for _ in rec.chunks():
@@ -225,7 +229,13 @@ def run_segment_job(job: SegmentJob) -> str:
             inferred = (f"; sensor size {rec.sensor_size[0]}x{rec.sensor_size[1]} inferred from the events "
                         "(pass --sensor-size WxH if the sensor is larger)")
         if calibration is None:
+            rec.require_usable_calibration()
             calibration = rec.calibration
+            if calibration is not None and tuple(calibration.sensor_size) != tuple(rec.sensor_size):
+                raise CalibrationError(
+                    f"{job.recording}: the calibration stored in the file is for {calibration.sensor_size[0]}x"
+                    f"{calibration.sensor_size[1]}, the sensor is {rec.sensor_size[0]}x{rec.sensor_size[1]} "
+                    f"({rec.sensor_size_source}); give the file's size, or a calibration for this one (--calib)")
         elif tuple(calibration.sensor_size) != tuple(rec.sensor_size):
             # K of another camera or resolution would undistort every event wrongly, silently.
             raise CalibrationError(

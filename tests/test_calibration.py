@@ -48,6 +48,15 @@ def test_shared_emsgc_calibration(shared_data):
         (YAML.replace("radtan", "equidistant").replace("cols: 4\n  data: [", "cols: 5\n  data: [0.01, "),
          r"'distortion_coefficients.data' needs 4 numbers for equidistant distortion, got 5"),
         (YAML.replace("radtan", "none"), r"distortion model 'none' but field 'distortion_coefficients.data'"),
+        # A column-major K (as numpy's .T or MATLAB's K(:) write it) puts cx, cy in the last row.
+        (YAML.replace("data: [199.092, 0, 132.192, 0, 198.829, 110.713, 0, 0, 1]",
+                      "data: [199.092, 0, 0, 0, 198.829, 0, 132.192, 110.713, 1]"),
+         r"K must be \[\[fx, s, cx\], \[0, fy, cy\], \[0, 0, 1\]\] \(row-major\)"),
+        (YAML.replace("data: [199.092, 0, 132.192, 0, 198.829, 110.713, 0, 0, 1]",
+                      "data: [199.092, 0, 132.192, 0, 198.829, 110.713, 0, 0, 0]"), r"\(row-major\)"),
+        (YAML.replace("data: [199.092, 0, 132.192, 0, 198.829, 110.713, 0, 0, 1]",
+                      "data: [199.092, 0, 640, 0, 198.829, 110.713, 0, 0, 1]"),
+         r"principal point \(cx, cy\) = \(640, 110.713\) px lies outside the 240x180 sensor"),
         ("- just a list", "expected a mapping"),
     ],
 )
@@ -199,3 +208,18 @@ def test_bad_kalibr_camchain_names_file_and_field(tmp_path, edit, message):
     with pytest.raises(CalibrationError, match=message) as info:
         load_calibration(p)
     assert "bad.yaml" in str(info.value)
+
+
+def test_file_names_of_the_distortion_models_and_an_empty_d():
+    cal = Calibration(K_DAVIS240, [0.1, 0.01, 0.0, 0.0], (240, 180), model="fisheye")
+    assert cal.model == "equidistant"
+    assert Calibration(K_DAVIS240, np.zeros(5), (240, 180), model="plumb_bob").model == "radtan"
+    assert Calibration(K_DAVIS240, [], (240, 180), model="none").model == "radtan"
+    with pytest.raises(CalibrationError, match="distortion model 'none' but D"):
+        Calibration(K_DAVIS240, [0.1, 0, 0, 0], (240, 180), model="none")
+
+
+def test_an_empty_distortion_list_means_none(tmp_path):
+    p = tmp_path / "c.yaml"
+    p.write_text(YAML.replace("cols: 4\n  data: [", "cols: 0\n  data: []  # ").replace("radtan", "plumb_bob"))
+    assert not np.any(load_calibration(p).D)

@@ -280,3 +280,14 @@ def test_a_training_checkpoint_given_as_model_says_to_export_it(tmp_path, capsys
     assert main(["flow", str(tmp_path / "x.npz"), "--model", str(ckpt), "--out", str(tmp_path / "f.npz")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and f"a training checkpoint? export it first: evseg export {ckpt} --out model.onnx" in err[0]
+
+
+def test_debug_before_the_command_shows_the_traceback(tmp_path, capsys):
+    bad = tmp_path / "bad.txt"
+    bad.write_text("not an event\n")
+    for argv in (["--debug", "info", str(bad)], ["info", "--debug", str(bad)]):
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert "Traceback (most recent call last)" in err and "evseg info: error:" in err, argv
+    assert main(["info", str(bad)]) == 2
+    assert "Traceback" not in capsys.readouterr().err

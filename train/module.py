@@ -232,9 +232,12 @@ class NormalFlowModule(pl.LightningModule):
     def configure_optimizers(self):
         opt = torch.optim.AdamW(self.parameters(), lr=self.hparams.lr, weight_decay=self.hparams.weight_decay)
         total = self.trainer.estimated_stepping_batches
-        if not math.isfinite(total) or total <= 0:
-            return opt
-        sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=self.hparams.lr, total_steps=int(total), pct_start=0.1)
+        if not math.isfinite(total) or total < 4:
+            return opt  # too short for the one-cycle schedule's two phases: a constant rate
+        # 10 % warm-up, but at least 2 steps: OneCycleLR divides by the warm-up's length - 1.
+        pct_start = max(0.1, 2.0 / int(total))
+        sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=self.hparams.lr, total_steps=int(total),
+                                                    pct_start=pct_start)
         return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
 
 

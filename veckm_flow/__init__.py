@@ -4,7 +4,8 @@ Public API::
 
     from evseg.veckm_flow import (EncodingConfig, encode_targets, encode_targets_looks, select_targets, FlowHead,
                                   PlaneFitNormalFlow, OnnxNormalFlow, NormalFlow,
-                                  head_output_to_flow, flow_to_head_units, load_head_checkpoint)
+                                  head_output_to_flow, flow_to_head_units, load_head_checkpoint,
+                                  FastEdges, SlowEdges)
 
 ``FlowHead`` / ``load_head_checkpoint`` (torch) and ``OnnxNormalFlow`` (onnxruntime) are imported
 lazily, so ``import evseg.veckm_flow`` and the ONNX inference path never import torch.
@@ -21,6 +22,8 @@ _LAZY = {
     "load_head_checkpoint": "evseg.veckm_flow.model",
     "save_head_checkpoint": "evseg.veckm_flow.model",
     "OnnxNormalFlow": "evseg.veckm_flow.inference",
+    "FastEdges": "evseg.veckm_flow.fast_edges",
+    "SlowEdges": "evseg.veckm_flow.slow_edges",
 }
 
 __all__ = [

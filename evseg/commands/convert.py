@@ -28,8 +28,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sensor-size", default=None, metavar="WxH",
                    help="sensor size in px, e.g. 346x260 (overrides the input's)")
     p.add_argument("--time-unit", choices=["s", "us"], default=None,
-                   help="text/csv only: unit of the time column (default: s if any of the first 1,000 times has a "
-                        "decimal point, else us)")
+                   help="text/csv only: unit of the time column (default: s if any of the first 1,000 times has a decimal "
+                        "point or exponent, else us)")
     p.add_argument("--sort", action="store_true",
                    help="accept unsorted timestamps and sort them (loads the whole recording)")
 

@@ -23,15 +23,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sensor-size", default=None, metavar="WxH",
                    help="sensor size in px, e.g. 346x260 (overrides the file's)")
     p.add_argument("--time-unit", choices=["s", "us"], default=None,
-                   help="text/csv only: unit of the time column (default: s if any of the first 1,000 times has a "
-                        "decimal point, else us)")
+                   help="text/csv only: unit of the time column (default: s if any of the first 1,000 times has a decimal "
+                        "point or exponent, else us)")
     p.add_argument("--sort", action="store_true",
                    help="accept unsorted timestamps and sort them (loads the whole recording)")
 
 
 def format_summary(path: Path, s) -> str:
     """Human-readable lines for a :class:`evseg.io.summary.RecordingSummary`."""
-    how = {"file": "from the file", "user": "given", "inferred": "inferred as max+1"}
+    how = {"file": "from the file", "user": "given", "inferred": "inferred as max+1", "calibration": "from the calibration"}
     size = (f"{s.sensor_size[0]}x{s.sensor_size[1]} px ({how[s.sensor_size_source]})"
             if s.sensor_size else "unknown")
     lines = [
@@ -56,7 +56,10 @@ def format_summary(path: Path, s) -> str:
     else:
         lines.append(f"t_offset:     {s.t_offset_us:,} us")
     where = "camera_info beside the topic" if s.topic is not None else "file"
-    lines.append(f"calibration:  {f'K, D in {where}' if s.has_calibration else 'none'}")
+    if s.calibration_problem is not None:
+        lines.append(f"calibration:  unusable: {s.calibration_problem}")
+    else:
+        lines.append(f"calibration:  {f'K, D in {where}' if s.has_calibration else 'none'}")
     return "\n".join(lines)
 
 

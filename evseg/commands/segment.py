@@ -27,8 +27,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sort", action="store_true",
                    help="sort events by time first (loads the whole recording; for files whose time goes back)")
     p.add_argument("--time-unit", choices=["s", "us"], default=None,
-                   help="text/csv only: unit of the time column (default: s if any of the first 1,000 times has a "
-                        "decimal point, else us)")
+                   help="text/csv only: unit of the time column (default: s if any of the first 1,000 times has a decimal "
+                        "point or exponent, else us)")
     p.add_argument("--calib", type=Path, default=None,
                    help="calibration YAML (ROS camera_info / EMSGC, or a Kalibr camchain)")
     p.add_argument("--calib-camera", default=None, metavar="NAME",
@@ -78,14 +78,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="replay the recording at the sensor's pace as a live camera would send it, and drop "
                         "windows when the pipeline falls behind (their events are labelled -1); reports "
                         "the windows dropped and the latency of the labels (evseg.live)")
-    p.add_argument("--speed", type=float, default=None,
+    p.add_argument("--speed", type=float, default=argparse.SUPPRESS,
                    help="with --realtime: replay this many times faster than recorded (default 1)")
-    p.add_argument("--max-lag-ms", type=float, default=None,
+    p.add_argument("--max-lag-ms", type=float, default=argparse.SUPPRESS,
                    help="with --realtime: windows that end more than this (ms) before the newest event are "
                         "dropped to catch up (default 20)")
     p.add_argument("--masks", action="store_true", help="also store dense object masks in the result")
     p.add_argument("--video", type=Path, default=None, help="write an overlay video (.mp4)")
-    p.add_argument("--fps", type=float, default=None,
+    p.add_argument("--fps", type=float, default=argparse.SUPPRESS,
                    help="frame rate of --video, one frame per window (default 25: 0.25x real time with 10 ms "
                         "strides)")
     p.add_argument("--frames", type=Path, default=None, help="write one overlay PNG per window here")
@@ -96,6 +96,8 @@ def run(args: argparse.Namespace) -> int:
     from evseg.errors import ConfigError
     from evseg.runner import SegmentJob, run_segment_job
 
+    for name in ("speed", "max_lag_ms", "fps"):  # SUPPRESS keeps "(default: None)" out of --help
+        setattr(args, name, getattr(args, name, None))
     for option, value in (("--speed", args.speed), ("--max-lag-ms", args.max_lag_ms)):
         if value is not None and not args.realtime:
             raise ConfigError(f"{option} sets the replay of --realtime: give --realtime too")

@@ -17,7 +17,7 @@ Example
 Formats (``FORMATS``; the format is detected from magic bytes and the extension, ``format=``
 overrides): text/csv, npy, npz, mat, h5 (DSEC layout), rosbag and rosbag2 (ROS1 and ROS2 bags
 of dvs_msgs / prophesee_event_msgs EventArray or event_camera_msgs EventPacket), aedat4,
-evt2, evt3 (Prophesee .raw), es (Event Stream v2 DVS). Writers: :func:`write_npz`,
+evt2, evt3 (Prophesee .raw), dat (Prophesee .dat, CD events), es (Event Stream v2 DVS). Writers: :func:`write_npz`,
 :func:`write_h5` (and :func:`write_text`), all atomic and lossless through the readers.
 """
 

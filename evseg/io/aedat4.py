@@ -55,6 +55,8 @@ class Aedat4Source:
 
     def _event_packets(self) -> Iterator[np.ndarray]:
         it = iter(self._decoder())
+        n_packets = n_events = 0
+        t_last = None
         while True:
             try:
                 packet = next(it)
@@ -62,9 +64,17 @@ class Aedat4Source:
                 return
             except BaseException as exc:  # see _decoder
                 _reraise_interrupts(exc)
-                raise FormatError(f"{self._where}: corrupt or truncated packet ({exc})") from None
+                # The decoder gives no byte offset; the packets and events read before say where.
+                after = (f"after {n_packets} packets, {n_events} events (last t = {t_last} us, camera clock)"
+                         if n_events else f"after {n_packets} packets, before any event")
+                raise FormatError(f"{self._where}: corrupt or truncated packet {after} ({exc})") from None
+            n_packets += 1
             if packet.get("stream_id") == self._stream_id and "events" in packet:
-                yield packet["events"]
+                ev = packet["events"]
+                if len(ev):
+                    n_events += len(ev)
+                    t_last = int(ev["t"][-1])
+                yield ev
 
     def chunks(self, chunk_events: int) -> Iterator[Chunk]:
         return batched_chunks(self._events(), chunk_events)

@@ -58,6 +58,13 @@ class H5Source:
 
     def _open(self, where: str) -> None:
         f = self._f
+        h5py = _h5()
+        if "events" in f and isinstance(f["events"], h5py.Dataset):
+            d = f["events"]
+            raise FormatError(
+                f"{where}: 'events' is a dataset of shape {d.shape} dtype {d.dtype}, not the DSEC group "
+                "events/{x,y,t,p} this reader takes; save the columns as an .npy N x 4 [t, x, y, p] "
+                "(integer t: us, float t: s), which evseg reads")
         try:
             g = f["events"]
             names = list(g.keys())
@@ -67,12 +74,21 @@ class H5Source:
         if missing:
             raise FormatError(f"{where}: group 'events' lacks datasets {missing} (has {names})")
         self._ds = {k: g[k] for k in "xytp"}
+        for k, d in self._ds.items():
+            # Column vectors (N, 1), as MATLAB and some exporters write them, read as (N,).
+            if not isinstance(d, h5py.Dataset) or not (len(d.shape) == 1 or (len(d.shape) == 2 and d.shape[1] == 1)):
+                shape = getattr(d, "shape", "a group")
+                raise FormatError(f"{where}: dataset 'events/{k}' must be one column of N values, got shape {shape}")
+        self._column = {k: len(d.shape) == 2 for k, d in self._ds.items()}
         n = {k: d.shape[0] if d.shape else -1 for k, d in self._ds.items()}
         if len(set(n.values())) != 1 or n["x"] < 0:
             raise FormatError(f"{where}: datasets events/x,y,t,p have different lengths {n}")
         self._n = n["x"]
         try:
-            self.t_offset_us = int(f["t_offset"][()]) if "t_offset" in f else 0
+            off = np.asarray(f["t_offset"][()]) if "t_offset" in f else np.zeros(1, np.int64)
+            if off.size != 1 or off.dtype.kind not in "iuf" or (off.dtype.kind == "f" and off.item() != int(off.item())):
+                raise ValueError(f"got {off.size} value(s) of dtype {off.dtype}: {off.ravel()[:3].tolist()}")
+            self.t_offset_us = int(off.reshape(()))
         except (OSError, TypeError, ValueError) as exc:
             raise FormatError(f"{where}: dataset 't_offset' is not an integer scalar ({exc})") from None
         attrs = f.attrs
@@ -96,7 +112,7 @@ class H5Source:
         if self._n == 0:
             return None
         try:
-            ends = [columns_to_events(*(self._ds[k][i:i + 1] for k in "txyp"), "", i)["t"][0]
+            ends = [columns_to_events(*(self._read(k, i, i + 1) for k in "txyp"), "", i)["t"][0]
                     for i in (0, self._n - 1)]
         except (FormatError, OSError, ValueError, KeyError):
             return None
@@ -106,12 +122,17 @@ class H5Source:
         for i in range(0, self._n, chunk_events):
             j = min(self._n, i + chunk_events)
             try:
-                cols = {k: d[i:j] for k, d in self._ds.items()}
+                cols = {k: self._read(k, i, j) for k in self._ds}
             except Exception as exc:  # damaged chunks surface as OSError, ValueError, KeyError...
                 raise FormatError(
                     f"{self._where}: cannot read events {i}..{j - 1} (corrupt data: {type(exc).__name__}: {exc})"
                 ) from None
             yield Chunk(columns_to_events(cols["t"], cols["x"], cols["y"], cols["p"], self._where, i))
+
+    def _read(self, key: str, i: int, j: int) -> np.ndarray:
+        """Events i..j-1 of column ``key`` as a 1-D array."""
+        d = self._ds[key]
+        return d[i:j, 0] if self._column[key] else d[i:j]
 
     def close(self) -> None:
         try:

@@ -44,5 +44,13 @@ def open_source(path: Path, format: str = "mat") -> ArraySource:
         bad = np.flatnonzero(~np.isfinite(a).all(axis=1))
         if len(bad):
             raise FormatError(f"{where}: variable 'events' has NaN/inf in row {int(bad[0])}")
-        t = np.rint(t).astype(np.int64)
+        frac = np.flatnonzero(t != np.floor(t))
+        if len(frac):
+            i = int(frac[0])
+            raise FormatError(
+                f"{where}: variable 'events' row {i}: t = {float(t[i])!r} has a fraction, but column 4 holds "
+                "whole microseconds; if the times are seconds, multiply them by 1e6 (or save an .npz, "
+                "where float times are seconds)"
+            )
+        t = t.astype(np.int64)
     return ArraySource(path, "mat", lambda i, j: (t[i:j], a[i:j, 0], a[i:j, 1], a[i:j, 2]), len(a))

@@ -11,7 +11,8 @@ Layouts read:
 * an ``.npz`` with column keys ``x``, ``y``, ``t`` (or an alias above) and ``p`` (or alias).
 
 Time unit: integer time fields are microseconds, floating-point ones seconds
-(``rint(t * 1e6)``). Other keys of an ``.npz`` are ignored except ``sensor_size`` (or
+(``rint(t * 1e6)``), except that a ``_us`` / ``_s`` suffix on the time field's name
+(``t_us``, ``timestamp_s``, ...) says the unit whatever the dtype. Other keys of an ``.npz`` are ignored except ``sensor_size`` (or
 ``width`` and ``height``), ``t_offset_us`` and the calibration ``K`` (3x3) and ``D`` (radtan),
 exposed as :attr:`Recording.calibration` (its sensor size is the declared one, else max + 1).
 
@@ -34,7 +35,8 @@ from evseg.events import EVENT_DTYPE, EventStream
 from evseg.io._atomic import atomic_path
 from evseg.io.recording import Chunk
 
-TIME_NAMES = ("t", "ts", "timestamp", "time", "t_us", "timestamp_us")
+TIME_NAMES = ("t", "ts", "timestamp", "time", "t_us", "ts_us", "timestamp_us", "time_us", "t_s", "ts_s",
+              "timestamp_s", "time_s")
 POLARITY_NAMES = ("p", "pol", "polarity", "on")
 
 
@@ -53,12 +55,23 @@ def _field_names(a: np.ndarray) -> list[str]:
     return names + titles
 
 
+def time_unit_of(name: str) -> str | None:
+    """``"us"`` / ``"s"`` for a time column named with that suffix, else None (decided by dtype).
+
+    >>> time_unit_of("timestamp_us"), time_unit_of("t_s"), time_unit_of("t")
+    ('us', 's', None)
+    """
+    return "us" if name.endswith("_us") else "s" if name.endswith("_s") else None
+
+
 def columns_to_events(
-    t: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray, where: str, first_index: int = 0
+    t: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray, where: str, first_index: int = 0,
+    time_unit: str | None = None,
 ) -> np.ndarray:
     """Convert decoded columns to :data:`EVENT_DTYPE`, checking values.
 
-    ``t`` is microseconds when integer, seconds when floating point. Raises
+    ``t`` is in ``time_unit`` (``"us"``, rounded to whole microseconds, or ``"s"``); None:
+    microseconds when integer, seconds when floating point. Raises
     :class:`FormatError` naming ``where`` and the event index of the first NaN/inf,
     non-integer or negative coordinate, or polarity outside {0, 1, -1, True, False}.
     """
@@ -91,15 +104,20 @@ def columns_to_events(
             i = int(bad[0])
             raise FormatError(f"{where}: field 'p' = {p[i]} at event {first_index + i} is not 0, 1 or -1")
     t = cols["t"]
-    if t.dtype.kind == "f":
-        t_us = t.astype(np.float64) * 1e6
+    seconds = time_unit == "s" or (time_unit is None and t.dtype.kind == "f")
+    if seconds or t.dtype.kind == "f":
+        t_us = t.astype(np.float64) * (1e6 if seconds else 1.0)
+        bad = np.flatnonzero(np.abs(t_us) > 2**62)
+        if len(bad):
+            i = int(bad[0])
+            raise FormatError(f"{where}: field 't' = {t[i]} at event {first_index + i} is out of range")
     elif t.dtype.kind == "u" and len(t) and int(t.max()) > 2**63 - 1:
         i = int(np.argmax(t))
         raise FormatError(f"{where}: field 't' = {t[i]} at event {first_index + i} is out of range")
     else:
         t_us = t
     ev = np.empty(len(t), dtype=EVENT_DTYPE)
-    ev["t"] = np.rint(t_us) if t.dtype.kind == "f" else t_us
+    ev["t"] = np.rint(t_us) if t_us.dtype.kind == "f" else t_us
     ev["x"] = cols["x"]
     ev["y"] = cols["y"]
     ev["p"] = np.where(p > 0, 1, -1) if p.dtype.kind != "b" else np.where(p, 1, -1)
@@ -110,8 +128,9 @@ class ArraySource:
     """Chunks of an in-memory or memory-mapped array in one of the layouts above."""
 
     def __init__(self, path: Path, format: str, get_columns, n: int, sensor_size=None,
-                 t_offset_us: int = 0, calibration_KD=None) -> None:
+                 t_offset_us: int = 0, calibration_KD=None, time_unit: str | None = None) -> None:
         self.path = path
+        self.time_unit = time_unit  # from the time column's name; None: by dtype
         self.format = format
         self.sensor_size = sensor_size
         self.t_offset_us = int(t_offset_us)
@@ -140,7 +159,8 @@ class ArraySource:
         if self._n == 0:
             return None
         try:
-            ends = [columns_to_events(*self._get(i, i + 1), "", first_index=i)["t"][0] for i in (0, self._n - 1)]
+            ends = [columns_to_events(*self._get(i, i + 1), "", first_index=i, time_unit=self.time_unit)["t"][0]
+                    for i in (0, self._n - 1)]
         except FormatError:
             return None
         return int(ends[0]), int(ends[1])
@@ -150,7 +170,7 @@ class ArraySource:
         for start in range(0, self._n, chunk_events):
             stop = min(self._n, start + chunk_events)
             t, x, y, p = self._get(start, stop)
-            yield Chunk(columns_to_events(t, x, y, p, where, first_index=start))
+            yield Chunk(columns_to_events(t, x, y, p, where, first_index=start, time_unit=self.time_unit))
 
     def close(self) -> None:
         self._get = None
@@ -165,7 +185,9 @@ def _structured_getter(a: np.ndarray, where: str):
             f"{where}: structured array with fields {names} lacks {missing} "
             f"(time: {'/'.join(TIME_NAMES)}; polarity: {'/'.join(POLARITY_NAMES)})"
         )
-    return lambda i, j: (a[tn][i:j], a["x"][i:j], a["y"][i:j], a[pn][i:j])
+    getter = lambda i, j: (a[tn][i:j], a["x"][i:j], a["y"][i:j], a[pn][i:j])  # noqa: E731
+    getter.time_unit = time_unit_of(tn)
+    return getter
 
 
 def _nx4_getter(a: np.ndarray, where: str):
@@ -244,7 +266,8 @@ def _open_npz(path: Path, where: str) -> ArraySource:
                 if len(c) != n:
                     raise FormatError(f"{where}: column '{k}' has {len(c)} values, 'x' has {n}")
             get = lambda i, j: (cols[tn][i:j], cols["x"][i:j], cols["y"][i:j], cols[pn][i:j])  # noqa: E731
-    return ArraySource(path, "npz", get, n, sensor_size, t_offset, kd)
+            get.time_unit = time_unit_of(tn)
+    return ArraySource(path, "npz", get, n, sensor_size, t_offset, kd, getattr(get, "time_unit", None))
 
 
 def open_source(path: Path, format: str) -> ArraySource:
@@ -252,7 +275,8 @@ def open_source(path: Path, format: str) -> ArraySource:
     if format == "npz":
         return _open_npz(path, where)
     a = _load_npy(path, where)
-    return ArraySource(path, "npy", _array_getter(a, where), len(a) if a.ndim else 0)
+    get = _array_getter(a, where)
+    return ArraySource(path, "npy", get, len(a) if a.ndim else 0, time_unit=getattr(get, "time_unit", None))
 
 
 def write_npz_chunks(

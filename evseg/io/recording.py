@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Callable, Iterable, Iterator, Protocol
 
 import numpy as np
 
-from evseg.errors import EventDataError
+from evseg.errors import EventDataError, EvsegError, FormatError
 from evseg.events import EVENT_DTYPE, EventStream, empty_events
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -76,7 +76,8 @@ class Recording:
         format: registry name of the format (see :data:`evseg.io.FORMATS`).
         sensor_size: ``(width, height)`` in px from the caller, the file, or (after
             :meth:`read_all` or a full pass of :meth:`chunks`) inferred; ``None`` if unknown.
-        sensor_size_source: ``"user"``, ``"file"``, ``"inferred"`` or ``None``.
+        sensor_size_source: ``"user"``, ``"file"``, ``"inferred"``, ``"calibration"`` (set by
+            :meth:`assume_sensor_size`) or ``None``.
         t_offset_us: absolute time (us) of ``t == 0`` in the chunks.
         calibration: intrinsics stored in the file, if any.
         topic, message_type: for bags, the topic read and its message type
@@ -108,6 +109,16 @@ class Recording:
             self.sensor_size, self.sensor_size_source = None, None
         self.t_offset_us = int(source.t_offset_us)
         self.calibration = source.calibration
+        self.calibration_problem: str | None = getattr(source, "calibration_problem", None)
+        """Why a calibration the file carries is unusable (it is then None), e.g. a bag's
+        CameraInfo of another size; :meth:`require_usable_calibration` raises it."""
+        if (self.calibration is not None and source.sensor_size is None and sensor_size is not None
+                and tuple(self.calibration.sensor_size) != self.sensor_size):
+            # The file's K, D came without a size (the reader took max + 1 of the events): the
+            # size the user gives is the one they belong to.
+            from dataclasses import replace
+
+            self.calibration = replace(self.calibration, sensor_size=self.sensor_size)
         self.topic: str | None = getattr(source, "topic", None)
         self.message_type: str | None = getattr(source, "msgtype", None)
         self.input_order: np.ndarray | None = None
@@ -130,6 +141,22 @@ class Recording:
             f"Recording({str(self.path)!r}, format={self.format!r}, sensor_size={self.sensor_size}, "
             f"t_offset_us={self.t_offset_us})"
         )
+
+    def require_usable_calibration(
+            self, hint: str = "give a calibration of your own (--calib, calibration=...) to use instead") -> None:
+        """Raise :class:`~evseg.errors.FormatError` when the file carries a calibration that
+        cannot be used (:attr:`calibration_problem`): going on without it would silently skip
+        the undistortion the file asks for."""
+        if self.calibration_problem is not None:
+            raise FormatError(f"{self.calibration_problem}; {hint}")
+
+    def assume_sensor_size(self, sensor_size: tuple[int, int], source: str) -> None:
+        """Give the sensor size of a file that declares none, before its events are read, e.g.
+        from the calibration the user gave; ``source`` says where it came from in messages
+        about events outside it. A size already known (the file's or the user's) is kept."""
+        if self.sensor_size is None:
+            self.sensor_size = _check_sensor_size(sensor_size)
+            self.sensor_size_source = source
 
     def time_span_us(self) -> tuple[int, int] | None:
         """``(first, last)`` event time (us, chunk time) when the format can read its two ends
@@ -223,6 +250,7 @@ class Recording:
         Raises :class:`EventDataError` if the sensor size is unknown and there are no events
         to infer it from.
         """
+        self.require_usable_calibration("open_recording(...) reads the events alone, with calibration None")
         events = _concat(list(self.chunks()))
         if self.sensor_size is None:
             raise EventDataError(
@@ -242,14 +270,21 @@ def batched_chunks(packets: Iterable[np.ndarray], chunk_events: int) -> Iterator
     ``chunk_events`` events (the last may be smaller); empty packets are skipped."""
     parts: list[np.ndarray] = []
     count = 0
-    for ev in packets:
-        if len(ev) == 0:
-            continue
-        parts.append(ev)
-        count += len(ev)
-        if count >= chunk_events:
+    try:
+        for ev in packets:
+            if len(ev) == 0:
+                continue
+            parts.append(ev)
+            count += len(ev)
+            if count >= chunk_events:
+                yield Chunk(np.concatenate(parts))
+                parts, count = [], 0
+    except EvsegError:
+        # A file cut or damaged further on: the events before the damage are still the user's
+        # (a run keeps their labels in a result flagged partial), then the error is raised.
+        if parts:
             yield Chunk(np.concatenate(parts))
-            parts, count = [], 0
+        raise
     if parts:
         yield Chunk(np.concatenate(parts))
 

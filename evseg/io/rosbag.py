@@ -46,6 +46,7 @@ class RosbagSource:
         self.path = path
         self.format = format
         self.calibration = None
+        self.calibration_problem: str | None = None  # why the bag's CameraInfo is not used
         self._ros2 = format == "rosbag2"
         self._where = where = f"{path}: {format}"
         if self._ros2:
@@ -61,7 +62,12 @@ class RosbagSource:
         try:
             self._pick_topic(topic)
             self._peek()
-            self.calibration = self._camera_info()
+            try:
+                self.calibration = self._camera_info()
+            except FormatError as exc:
+                # The events are fine; the calibration is refused only where it would be used,
+                # so a --calib of the user's own still reads the bag.
+                self.calibration_problem = str(exc)
         except Exception:
             self.close()
             raise
@@ -137,7 +143,7 @@ class RosbagSource:
         size = self.sensor_size or (int(msg.width), int(msg.height))
         if msg.width and msg.height and (int(msg.width), int(msg.height)) != tuple(size):
             raise FormatError(f"{where}: CameraInfo is for {msg.width}x{msg.height}, the events are "
-                              f"{size[0]}x{size[1]}; pick the event topic of that camera (--topic)")
+                              f"{size[0]}x{size[1]}")
         try:
             return calibration_from_camera_info(K, D, msg.distortion_model, size, where)
         except CalibrationError as exc:

@@ -21,7 +21,8 @@ class RecordingSummary:
             ``None`` without events.
         t_offset_us: absolute time of ``t == 0`` (us).
         x_range, y_range: ``(min, max)`` coordinates in px, ``None`` without events.
-        has_calibration: the file carries intrinsics.
+        has_calibration: the file carries usable intrinsics.
+        calibration_problem: why the file's intrinsics are unusable, else ``None``.
         topic, message_type: for bags, the topic read and its message type; else ``None``.
     """
 
@@ -38,6 +39,7 @@ class RecordingSummary:
     has_calibration: bool
     topic: str | None = None
     message_type: str | None = None
+    calibration_problem: str | None = None
 
     @property
     def duration_us(self) -> int:
@@ -85,4 +87,5 @@ def summarize(rec: Recording) -> RecordingSummary:
         has_calibration=rec.calibration is not None,
         topic=rec.topic,
         message_type=rec.message_type,
+        calibration_problem=rec.calibration_problem,
     )

@@ -28,3 +28,23 @@ def test_davis_fixtures_skip_frames_and_imu(shared_data):
     with open_recording(folder / "aestream_davis.aedat4", chunk_events=10_000) as rec:
         assert rec.sensor_size == (346, 260)
         assert sum(len(c) for c in rec.chunks()) == 117_667
+
+
+def test_a_cut_file_gives_its_events_before_the_cut_then_the_error(shared_data, tmp_path):
+    import pytest
+
+    from evseg.errors import FormatError
+
+    data = (shared_data / "dvxplorer_person_aedat4" / "sample.aedat4").read_bytes()
+    cut = tmp_path / "half.aedat4"
+    cut.write_bytes(data[: len(data) // 2])
+    got = []
+    with open_recording(cut) as rec:  # one chunk of up to 1 M events would hold them all
+        with pytest.raises(FormatError, match=r"half.aedat4: aedat4: corrupt or truncated packet after \d+ packets, "
+                                              r"\d+ events \(last t = \d+ us"):
+            for c in rec.chunks():
+                got.append(c)
+    n = sum(len(c) for c in got)
+    assert 40_000 < n < 111_954  # about half of the 111,954 events
+    whole = read_events(shared_data / "dvxplorer_person_aedat4" / "sample.aedat4").events
+    np.testing.assert_array_equal(np.concatenate(got), whole[:n])

@@ -56,3 +56,36 @@ def test_missing_datasets_and_unequal_lengths(tmp_path):
         f.create_dataset("data", data=np.zeros(3))
     with pytest.raises(FormatError, match=r"no readable group 'events'.*\['data'\]"):
         read_events(tmp_path / "c.h5")
+
+
+def test_column_vector_datasets_and_a_one_element_offset(tmp_path):
+    # MATLAB-style (N, 1) columns and t_offset stored as [42] are DSEC files all the same.
+    ev = sample_events(50)
+    with h5py.File(tmp_path / "col.h5", "w") as f:
+        for k in "xyt":
+            f.create_dataset(f"events/{k}", data=ev[k][:, None])
+        f.create_dataset("events/p", data=(ev["p"] > 0).astype(np.uint8)[:, None])
+        f.create_dataset("t_offset", data=np.array([42], np.int64))
+    with open_recording(tmp_path / "col.h5", sensor_size=(64, 48)) as rec:
+        assert rec.time_span_us() == (int(ev["t"][0]), int(ev["t"][-1]))
+        s = rec.read_all()
+    assert s.t_offset_us == 42
+    np.testing.assert_array_equal(s.events, ev)
+
+
+def test_other_layouts_are_named(tmp_path):
+    with h5py.File(tmp_path / "m.h5", "w") as f:
+        for k in "xytp":
+            f.create_dataset(f"events/{k}", data=np.zeros((3, 2), np.int64))
+    with pytest.raises(FormatError, match=r"dataset 'events/x' must be one column of N values, got shape \(3, 2\)"):
+        read_events(tmp_path / "m.h5")
+    with h5py.File(tmp_path / "v2e.h5", "w") as f:
+        f.create_dataset("events", data=np.zeros((5, 4), np.uint32))
+    with pytest.raises(FormatError, match=r"'events' is a dataset of shape \(5, 4\).*\.npy N x 4 \[t, x, y, p\]"):
+        read_events(tmp_path / "v2e.h5")
+    with h5py.File(tmp_path / "o.h5", "w") as f:
+        for k in "xytp":
+            f.create_dataset(f"events/{k}", data=np.zeros(3, np.int64))
+        f.create_dataset("t_offset", data=np.array([1, 2], np.int64))
+    with pytest.raises(FormatError, match=r"dataset 't_offset' is not an integer scalar"):
+        read_events(tmp_path / "o.h5")

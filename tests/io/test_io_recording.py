@@ -104,3 +104,18 @@ def test_time_span_from_the_file_ends(tmp_path):
         assert rec.time_span_us() is None
     with open_recording(_npz(tmp_path, ev[:0])) as rec:
         assert rec.time_span_us() is None
+
+
+def test_batched_chunks_hand_over_the_events_before_a_damaged_packet():
+    from evseg.errors import FormatError
+    from evseg.io.recording import batched_chunks
+
+    def packets():
+        yield sample_events(5)
+        yield sample_events(3)
+        raise FormatError("f: damaged packet 2")
+
+    chunks = batched_chunks(packets(), 100)
+    assert len(next(chunks).events) == 8
+    with pytest.raises(FormatError, match="damaged packet 2"):
+        next(chunks)

@@ -34,3 +34,14 @@ def test_real_dvs128_clips(shared_data):
         s = read_events(shared_data / "dvs128_single_motion" / f"{name}.mat")
         assert len(s) == n and s.sensor_size == (128, 128), name
         assert int(s.events["t"][0]) >= 0
+
+
+def test_double_times_in_seconds_are_refused_not_rounded(tmp_path):
+    # Rounded, seconds become 0 or 1 us and the recording collapses to one window.
+    ev = np.array([[1, 2, 1, 0.5], [3, 4, -1, 0.75]], dtype=np.float64)
+    scipy.io.savemat(tmp_path / "s.mat", {"events": ev})
+    with pytest.raises(FormatError, match=r"s.mat: mat: variable 'events' row 0: t = 0.5 has a fraction.*1e6"):
+        read_events(tmp_path / "s.mat")
+    ev[:, 3] = [500000, 750000]  # whole microseconds in a double matrix are fine
+    scipy.io.savemat(tmp_path / "us.mat", {"events": ev})
+    assert read_events(tmp_path / "us.mat").events["t"].tolist() == [500000, 750000]

@@ -9,7 +9,7 @@ from evfiles import sample_events
 from evseg.calibration import Calibration
 from evseg.errors import FormatError
 from evseg.events import EventStream
-from evseg.io import read_events, write_npz
+from evseg.io import open_recording, read_events, write_npz
 
 
 def test_structured_npy_with_field_variants(tmp_path):
@@ -112,3 +112,49 @@ def test_real_eed_npy_titled_field(shared_data):
     s = read_events(shared_data / "eed_what_is_background" / "events_t_us_x_y_on.npy")
     assert len(s) == 271_264 and s.sensor_size == (190, 180)
     assert 0.49 < float((s.events["p"] > 0).mean()) < 0.51  # README: 49.8 % ON
+
+
+def test_a_unit_suffix_on_the_time_name_decides_the_unit(tmp_path):
+    # Float microseconds under 't_us' must not be read as seconds (x 1e6), nor integer
+    # seconds under 't_s' as microseconds.
+    x, y, p = np.array([1, 2]), np.array([3, 4]), np.array([1, 0])
+    np.savez(tmp_path / "us.npz", t_us=np.array([500010.0, 500020.4]), x=x, y=y, p=p)
+    assert read_events(tmp_path / "us.npz").events["t"].tolist() == [500010, 500020]
+    np.savez(tmp_path / "s.npz", t_s=np.array([1, 2]), x=x, y=y, p=p)
+    assert read_events(tmp_path / "s.npz").events["t"].tolist() == [1_000_000, 2_000_000]
+    a = np.zeros(2, dtype=[("timestamp_us", "<f8"), ("x", "<u2"), ("y", "<u2"), ("polarity", "i1")])
+    a["timestamp_us"] = [7.0, 9.0]
+    np.save(tmp_path / "st.npy", a)
+    with open_recording(tmp_path / "st.npy") as rec:
+        assert rec.time_span_us() == (7, 9)
+        assert rec.read_all().events["t"].tolist() == [7, 9]
+
+
+def test_a_stored_calibration_takes_the_size_the_user_gives(tmp_path):
+    # K, D without a sensor size: the reader sizes them as max + 1 of the events, which is
+    # smaller than the sensor; --sensor-size must size the calibration too, not be refused.
+    ev = sample_events(200)
+    K = np.array([[60.0, 0, 32], [0, 60, 24], [0, 0, 1]])
+    np.savez(tmp_path / "kd.npz", events=np.stack([ev["t"] / 1e6, ev["x"], ev["y"], ev["p"]], 1), K=K, D=np.zeros(4))
+    with open_recording(tmp_path / "kd.npz", sensor_size=(80, 60)) as rec:
+        assert rec.calibration.sensor_size == (80, 60)
+
+
+def test_segment_takes_the_calibrations_size_for_a_file_without_one(tmp_path, capsys):
+    from evseg.cli import main
+
+    ev = sample_events(300)  # events within 64x48; the camera is 80x60
+    lines = "".join(f"{t / 1e6:.6f} {x} {y} {int(p > 0)}\n" for t, x, y, p in ev[["t", "x", "y", "p"]])
+    (tmp_path / "e.txt").write_text(lines)
+    (tmp_path / "c.yaml").write_text(
+        "image_width: 80\nimage_height: 60\ncamera_matrix: {data: [60, 0, 40, 0, 60, 30, 0, 0, 1]}\n"
+        "distortion_model: plumb_bob\ndistortion_coefficients: {data: [0, 0, 0, 0, 0]}\n")
+    out = tmp_path / "r.npz"
+    rc = main(["segment", str(tmp_path / "e.txt"), "--calib", str(tmp_path / "c.yaml"), "--out", str(out),
+               "--flow-method", "planefit", "--no-progress"])
+    assert rc == 0, capsys.readouterr().err
+    assert np.load(out)["sensor_size"].tolist() == [80, 60]
+    rc = main(["flow", str(tmp_path / "e.txt"), "--calib", str(tmp_path / "c.yaml"), "--out", str(tmp_path / "f.npz"),
+               "--baseline", "--no-progress"])
+    assert rc == 0, capsys.readouterr().err
+    assert np.load(tmp_path / "f.npz")["sensor_size"].tolist() == [80, 60]

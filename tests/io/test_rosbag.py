@@ -78,6 +78,37 @@ def test_bad_camera_info_names_the_topic_and_field(tmp_path):
         "/dvs/camera_info": {"K": K_INFO, "D": [], "distortion_model": "plumb_bob", "width": 346, "height": 260}})
     with pytest.raises(FormatError, match=r"CameraInfo is for 346x260, the events are 64x48"):
         read_events(p)
+    # The events themselves stay readable, and say why the calibration is not used.
+    with open_recording(p) as rec:
+        assert rec.calibration is None and "CameraInfo is for 346x260" in rec.calibration_problem
+        assert sum(len(c) for c in rec.chunks()) == len(ev)
+
+
+def test_an_empty_d_means_no_distortion(tmp_path):
+    # ROS drivers publish D = [] for an undistorted (or never-distorted) camera.
+    ev = sample_events(30, seed=6)
+    write_bag(p := tmp_path / "b.bag", {"/dvs/events": [ev]}, camera_info={
+        "/dvs/camera_info": {"K": K_INFO, "D": [], "distortion_model": "plumb_bob"}})
+    cal = read_events(p).calibration
+    assert cal.model == "radtan" and not np.any(cal.D)
+
+
+def test_a_calibration_of_ones_own_reads_a_bag_with_an_unusable_camera_info(tmp_path, capsys):
+    from evseg.cli import main
+
+    ev = sample_events(300, seed=6)
+    write_bag(p := tmp_path / "b.bag", {"/dvs/events": [ev]}, camera_info={
+        "/dvs/camera_info": {"K": K_INFO, "D": [], "distortion_model": "plumb_bob", "width": 346, "height": 260}})
+    calib = tmp_path / "calib.yaml"
+    calib.write_text("image_width: 64\nimage_height: 48\ncamera_matrix: {rows: 3, cols: 3, data: [60, 0, 32, 0, 60, 24, "
+                     "0, 0, 1]}\ndistortion_model: plumb_bob\ndistortion_coefficients: {rows: 1, cols: 5, data: [0, 0, 0, 0, 0]}\n")
+    out = tmp_path / "r.npz"
+    assert main(["segment", str(p), "--out", str(out), "--flow-method", "planefit", "--no-progress"]) == 2
+    assert "CameraInfo is for 346x260, the events are 64x48; give a calibration of your own (--calib" in \
+        capsys.readouterr().err
+    assert main(["segment", str(p), "--out", str(out), "--calib", str(calib), "--flow-method", "planefit",
+                 "--no-progress"]) == 0
+    assert len(np.load(out)["label"]) == len(ev)
 
 
 def _same_events(stream, ev):

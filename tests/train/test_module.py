@@ -203,3 +203,24 @@ def test_object_weight_uncertainty_weighs_the_uncertainty_nll_alike():
         nll = L.uncertainty_nll(out[:, 2], L.angular_error(out[:, :2], nf))
         expected = (3.0 * nll[:4].sum() + nll[4:].sum()) / (3.0 * 4 + 12) if weighted else nll.mean()
         torch.testing.assert_close(m._losses(batch)["nll"], expected)
+
+
+def test_the_learning_rate_schedule_works_for_any_number_of_steps():
+    # OneCycleLR divides by its warm-up length - 1: 10 steps at 10 % warm-up was a
+    # ZeroDivisionError; short runs (evseg train --trainer.max_steps N) must all work.
+    from types import SimpleNamespace
+
+    for total in (1, 2, 3, 4, 5, 10, 11, 16_000):
+        m = NormalFlowModule(encoding={"d": 16}, head={"hidden": 8, "layers": 1})
+        m._trainer = SimpleNamespace(estimated_stepping_batches=total)
+        out = m.configure_optimizers()
+        opt = out["optimizer"] if isinstance(out, dict) else out
+        lrs = []
+        for _ in range(total):
+            lrs.append(opt.param_groups[0]["lr"])
+            opt.step()
+            if isinstance(out, dict):
+                out["lr_scheduler"]["scheduler"].step()
+        assert all(math.isfinite(v) and v > 0 for v in lrs), (total, lrs)
+        if total >= 4:
+            assert math.isclose(max(lrs), m.hparams.lr, rel_tol=1e-6), total  # the warm-up reaches the peak
