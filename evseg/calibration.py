@@ -1,5 +1,6 @@
 """Camera calibration: pinhole intrinsics K with radtan or equidistant (fisheye) distortion,
-loaded from a ROS ``camera_info`` / EMSGC YAML or a Kalibr camchain YAML.
+loaded from a ROS ``camera_info`` / EMSGC YAML, a Kalibr camchain YAML or an OpenCV
+``FileStorage`` YAML.
 
 ROS ``camera_info`` layout (as EMSGC uses it)::
 
@@ -17,6 +18,10 @@ Kalibr camchain layout (``kalibr_calibrate_cameras`` output; one block per camer
       distortion_model: equidistant   # or radtan / none
       distortion_coeffs: [k1, k2, k3, k4]
       resolution: [346, 260]
+
+OpenCV ``FileStorage`` layout (``%YAML:1.0``, as OpenCV's calibration sample writes it): the
+fields of ROS ``camera_info`` with the matrices as ``!!opencv-matrix``; read with
+``cv2.FileStorage``.
 
 Distortion models: ``radtan`` (Brown-Conrady: ``[k1, k2, p1, p2(, k3)]``, or the 8
 coefficients ``[k1, k2, p1, p2, k3, k4, k5, k6]`` of ROS's ``rational_polynomial``), undistorted
@@ -269,8 +274,52 @@ def calibration_from_camera_info(K, D, distortion_model: str, sensor_size: tuple
     return _checked(K.reshape(3, 3), D, tuple(int(v) for v in sensor_size), model, where)
 
 
+def _is_opencv_filestorage(path: str) -> bool:
+    try:
+        with open(path, "rb") as f:
+            head = f.read(4096)
+    except OSError:
+        return False  # the YAML loader reports it
+    # Older OpenCV writes "%YAML:1.0" (not YAML), newer "%YAML 1.2" with !!opencv-matrix tags.
+    return head.lstrip().startswith(b"%YAML:") or b"!!opencv-matrix" in head
+
+
+def _read_opencv_filestorage(path: str) -> dict:
+    """The ROS camera_info fields of an OpenCV FileStorage YAML, as plain Python values."""
+    import cv2
+
+    try:
+        fs = cv2.FileStorage(path, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_FORMAT_YAML)
+    except cv2.error as exc:
+        raise CalibrationError(f"{path}: not a readable OpenCV FileStorage YAML ({str(exc).strip()})") from None
+    try:
+        if not fs.isOpened():
+            raise CalibrationError(f"{path}: not a readable OpenCV FileStorage YAML")
+        doc: dict = {}
+        for key in ("image_width", "image_height", "camera_matrix", "distortion_coefficients", "distortion_model"):
+            node = fs.getNode(key)
+            if node.empty() or node.isNone():
+                continue
+            if node.isMap():  # !!opencv-matrix
+                mat = node.mat()
+                if mat is None:
+                    raise CalibrationError(f"{path}: field '{key}' is not a matrix")
+                doc[key] = {"data": np.asarray(mat, dtype=np.float64).ravel().tolist()}
+            elif node.isSeq():
+                doc[key] = [node.at(i).real() for i in range(node.size())]
+            elif node.isString():
+                doc[key] = node.string()
+            else:
+                value = node.real()
+                doc[key] = int(value) if key.startswith("image_") and value == int(value) else value
+        return doc
+    finally:
+        fs.release()
+
+
 def load_calibration(path: str | Path, camera: str | None = None) -> Calibration:
-    """Load a calibration YAML: ROS ``camera_info`` / EMSGC style, or a Kalibr camchain.
+    """Load a calibration YAML: ROS ``camera_info`` / EMSGC style, a Kalibr camchain, or an
+    OpenCV ``FileStorage`` file of the camera_info fields.
 
     Args:
         path: the YAML file (layouts in the module docstring; the layout is recognised from
@@ -284,6 +333,12 @@ def load_calibration(path: str | Path, camera: str | None = None) -> Calibration
     import yaml
 
     path = str(path)
+    if _is_opencv_filestorage(path):
+        doc = _read_opencv_filestorage(path)
+        if camera is not None:
+            raise CalibrationError(f"{path}: camera '{camera}' asked for, but the file is a single-camera "
+                                   "OpenCV FileStorage calibration, not a Kalibr camchain")
+        return _load_camera_info(doc, path)
     try:
         with open(path) as f:
             doc = yaml.safe_load(f)
@@ -296,7 +351,15 @@ def load_calibration(path: str | Path, camera: str | None = None) -> Calibration
     except yaml.YAMLError as exc:
         raise CalibrationError(f"{path}: {yaml_problem(exc)}") from None
     if not isinstance(doc, dict):
-        raise CalibrationError(f"{path}: expected a mapping of calibration fields, got {type(doc).__name__}")
+        raise CalibrationError(
+            f"{path}: expected a mapping of calibration fields, got {type(doc).__name__}; the layouts read are ROS "
+            "camera_info (image_width, image_height, camera_matrix, distortion_model, distortion_coefficients), "
+            "a Kalibr camchain (cam0: intrinsics, resolution, ...) and OpenCV FileStorage YAML (a one-line "
+            "'fx fy cx cy k1 k2 p1 p2 k3' such as the ECD datasets' calib.txt needs writing as one of them)")
+    blocks = [k for k, v in doc.items() if isinstance(k, str) and _KALIBR_CAMERA.match(k) and isinstance(v, dict)]
+    if blocks and not _kalibr_cameras(doc):
+        raise CalibrationError(f"{path}: Kalibr camchain block '{blocks[0]}' has no field 'intrinsics' "
+                               "([fu, fv, pu, pv])")
     if _kalibr_cameras(doc):
         return _load_kalibr(doc, path, camera)
     if camera is not None:

@@ -223,3 +223,28 @@ def test_an_empty_distortion_list_means_none(tmp_path):
     p = tmp_path / "c.yaml"
     p.write_text(YAML.replace("cols: 4\n  data: [", "cols: 0\n  data: []  # ").replace("radtan", "plumb_bob"))
     assert not np.any(load_calibration(p).D)
+
+
+@pytest.mark.parametrize("header", ["%YAML:1.0\n", "%YAML 1.2\n---\n"])
+def test_opencv_filestorage_yaml(tmp_path, header):
+    # What cv2.FileStorage writes (old and new headers) for OpenCV's calibration sample fields.
+    p = tmp_path / "ocv.yaml"
+    p.write_text(header + "image_width: 240\nimage_height: 180\ncamera_matrix: !!opencv-matrix\n   rows: 3\n"
+                 "   cols: 3\n   dt: d\n   data: [ 199., 0., 120., 0., 199., 90., 0., 0., 1. ]\n"
+                 "distortion_coefficients: !!opencv-matrix\n   rows: 1\n   cols: 5\n   dt: d\n"
+                 "   data: [ -0.3, 0.1, 0., 0., 0. ]\navg_reprojection_error: 0.2\n")
+    cal = load_calibration(p)
+    assert cal.sensor_size == (240, 180) and cal.model == "radtan"
+    np.testing.assert_array_equal(cal.K, [[199, 0, 120], [0, 199, 90], [0, 0, 1]])
+    np.testing.assert_array_equal(cal.D, [-0.3, 0.1, 0, 0, 0])
+
+
+@pytest.mark.parametrize("text, message", [
+    ("199.0 199.0 120 90 -0.3 0.1 0 0 0\n", r"expected a mapping of calibration fields, got str; the layouts read"),
+    ("cam0:\n  resolution: [240, 180]\n", r"Kalibr camchain block 'cam0' has no field 'intrinsics'"),
+])
+def test_other_layouts_say_which_layouts_are_read(tmp_path, text, message):
+    p = tmp_path / "calib.txt"
+    p.write_text(text)
+    with pytest.raises(CalibrationError, match=message):
+        load_calibration(p)

@@ -13,7 +13,8 @@ Layouts read:
 Time unit: integer time fields are microseconds, floating-point ones seconds
 (``rint(t * 1e6)``), except that a ``_us`` / ``_s`` suffix on the time field's name
 (``t_us``, ``timestamp_s``, ...) says the unit whatever the dtype. Other keys of an ``.npz`` are ignored except ``sensor_size`` (or
-``width`` and ``height``), ``t_offset_us`` and the calibration ``K`` (3x3) and ``D`` (radtan),
+``width`` and ``height``), ``t_offset_us`` and the calibration ``K`` (3x3) and ``D`` (radtan;
+absent: no distortion),
 exposed as :attr:`Recording.calibration` (its sensor size is the declared one, else max + 1).
 
 ``.npy`` files are memory-mapped (streaming from disk); an ``.npz`` member is loaded whole
@@ -243,8 +244,11 @@ def _open_npz(path: Path, where: str) -> ArraySource:
             sensor_size = (int(_npz_member(z, "width", where)), int(_npz_member(z, "height", where)))
         t_offset = int(_npz_member(z, "t_offset_us", where)) if "t_offset_us" in keys else 0
         kd = None
-        if "K" in keys and "D" in keys:
-            kd = (_npz_member(z, "K", where), _npz_member(z, "D", where))
+        if "D" in keys and "K" not in keys:
+            raise FormatError(f"{where}: key 'D' (distortion) without the camera matrix 'K'; store both, or neither")
+        if "K" in keys:
+            # K alone: a pinhole camera without distortion.
+            kd = (_npz_member(z, "K", where), _npz_member(z, "D", where) if "D" in keys else np.zeros(0))
             if "distortion_model" in keys:  # absent in files written before it existed: radtan
                 model = _npz_member(z, "distortion_model", where)
                 if model.size != 1 or model.dtype.kind not in "US":

@@ -58,7 +58,9 @@ class RosbagSource:
             self._reader = Reader(path)
             self._reader.open()
         except Exception as exc:  # rosbags raises ReaderError, but also struct/KeyError on garbage
-            raise FormatError(f"{where}: not a readable {kind} ({type(exc).__name__}: {exc})") from None
+            hint = ("; a ROS1 bag cut short or never closed (a recording that was killed) loses its index: "
+                    "`rosbag reindex` rebuilds it" if not self._ros2 and "index" in str(exc).lower() else "")
+            raise FormatError(f"{where}: not a readable {kind} ({type(exc).__name__}: {exc}){hint}") from None
         try:
             self._pick_topic(topic)
             self._peek()

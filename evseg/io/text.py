@@ -7,7 +7,10 @@ Layout:
 * optional csv header naming the columns (``t``/``ts``/``timestamp``/``time``, ``x``, ``y``,
   ``p``/``pol``/``polarity``/``on``; a ``_us`` or ``_s`` suffix on the time column sets its
   unit); without a header the columns are ``t x y p``;
-* one event per line, separated by whitespace or commas (decided by the first data line).
+* one event per line, separated by whitespace, commas or semicolons (decided by the first data
+  line). Spreadsheet and pandas exports read as they are: a UTF-8 byte-order mark, quoted
+  header names, a trailing separator, and columns the header leaves unnamed (pandas' index)
+  or names otherwise (ignored).
 
 Time unit: seconds when any of the first 1,000 time values has a decimal point or exponent,
 microseconds otherwise (``time_unit=`` or a ``_us`` / ``_s`` header suffix overrides). A guess
@@ -54,6 +57,19 @@ def _has_fraction_syntax(toks: list[bytes], column: int) -> bool:
     return b"." in tok or b"e" in tok
 
 
+_BOM = b"\xef\xbb\xbf"
+"""UTF-8 byte-order mark, which spreadsheet programs put at the start of a csv."""
+
+
+def _tokens(line: bytes) -> list[bytes]:
+    """Fields of a line whatever its separator (for telling numbers from a header)."""
+    return line.replace(b",", b" ").replace(b";", b" ").split()
+
+
+def _split(line: bytes, delimiter: str | None) -> list[bytes]:
+    return line.split(delimiter.encode()) if delimiter else line.split()
+
+
 def _is_number(tok: bytes) -> bool:
     try:
         float(tok)
@@ -78,6 +94,7 @@ class TextSource:
         self._columns = [0, 1, 2, 3]  # positions of t, x, y, p
         self._ncols = 4
         self._delimiter: str | None = None
+        self._strip_trailing: bytes | None = None  # a separator every line ends with (header "t,x,y,p,")
         self._unit = time_unit
         self._unit_guessed = False  # microseconds guessed from the first lines: checked on every line
         self._data_start = 0  # number of lines before the first data line
@@ -87,8 +104,12 @@ class TextSource:
         """(line number from 1, raw line) of non-blank, non-comment lines."""
         with open(self.path, "rb") as f:
             for n, line in enumerate(f, start=1):
+                if n == 1 and line.startswith(_BOM):
+                    line = line[len(_BOM):]
                 s = line.strip()
                 if s and not s.startswith((b"#", b"%")):
+                    if self._strip_trailing is not None and s.endswith(self._strip_trailing):
+                        s = s[:-1].rstrip()
                     yield n, s
 
     def _scan_header(self) -> None:
@@ -97,23 +118,24 @@ class TextSource:
             raise FormatError(f"{self._where}: no events (only blank or comment lines)")
         i = 0
         n, line = first[0]
-        toks = line.replace(b",", b" ").split()
+        toks = _tokens(line)
         if len(toks) == 2 and all(t.isdigit() for t in toks):
             self.sensor_size = (int(toks[0]), int(toks[1]))
             if min(self.sensor_size) <= 0:
                 raise FormatError(f"{self._where}: line {n}: sensor size must be positive, got {line!r}")
             self._data_start = n
             i = 1
-        if i < len(first) and not all(_is_number(t) for t in first[i][1].replace(b",", b" ").split()):
+        if i < len(first) and not all(_is_number(t) for t in _tokens(first[i][1])):
             n, line = first[i]
             self._parse_column_names(n, line)
             self._data_start = n
             i += 1
+            first = list(itertools.islice(self._lines(), 3))  # again, with a trailing separator stripped
         if i >= len(first):
             return  # a header and no events: an empty recording
         n, line = first[i]
-        self._delimiter = "," if b"," in line else None
-        toks = line.split(b",") if self._delimiter else line.split()
+        self._delimiter = "," if b"," in line else ";" if b";" in line else None
+        toks = _split(line, self._delimiter)
         if len(toks) != self._ncols:
             raise FormatError(
                 f"{self._where}: line {n}: expected {self._ncols} columns (t x y p), got {len(toks)}: "
@@ -123,16 +145,21 @@ class TextSource:
             # One line is not enough: a file written with %g starts "0 x y p" in seconds.
             sample = itertools.islice(itertools.dropwhile(lambda nl: nl[0] <= self._data_start, self._lines()),
                                       _UNIT_SAMPLE_LINES)
-            seconds = any(_has_fraction_syntax(ln.split(b",") if self._delimiter else ln.split(), self._columns[0])
-                          for _, ln in sample)
+            seconds = any(_has_fraction_syntax(_split(ln, self._delimiter), self._columns[0]) for _, ln in sample)
             self._unit = "s" if seconds else "us"
             self._unit_guessed = not seconds
 
     def _parse_column_names(self, n: int, line: bytes) -> None:
         try:
-            names = [t.strip().lower() for t in line.decode("ascii").replace(",", " ").split()]
+            text = line.decode("ascii")
         except UnicodeDecodeError:
             raise FormatError(f"{self._where}: line {n}: not ASCII text") from None
+        sep = "," if "," in text else ";" if ";" in text else None
+        # Split on the separator itself, so that an unnamed column (pandas' index) still counts.
+        names = [t.strip().strip("\"'").strip().lower() for t in (text.split(sep) if sep else text.split())]
+        if sep is not None and len(names) > 1 and names[-1] == "":
+            self._strip_trailing = sep.encode()  # "t,x,y,p," and "1,2,3,4,"
+            names = names[:-1]
         known = {a for aliases in _ALIASES.values() for a in aliases}
         if sum(nm in known for nm in names) < 4:
             raise FormatError(
@@ -225,7 +252,7 @@ class TextSource:
 
     def _raise_bad_line(self, block: list[tuple[int, bytes]]):
         for n, line in block:
-            toks = line.split(b",") if self._delimiter else line.split()
+            toks = _split(line, self._delimiter)
             if len(toks) != self._ncols:
                 raise FormatError(
                     f"{self._where}: line {n}: expected {self._ncols} columns, got {len(toks)}: {line[:80]!r}"

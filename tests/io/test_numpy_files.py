@@ -158,3 +158,15 @@ def test_segment_takes_the_calibrations_size_for_a_file_without_one(tmp_path, ca
                "--baseline", "--no-progress"])
     assert rc == 0, capsys.readouterr().err
     assert np.load(tmp_path / "f.npz")["sensor_size"].tolist() == [80, 60]
+
+
+def test_a_camera_matrix_alone_is_a_calibration_and_d_alone_is_refused(tmp_path):
+    ev = sample_events(50)
+    K = np.array([[60.0, 0, 32], [0, 60, 24], [0, 0, 1]])
+    cols = dict(t=ev["t"], x=ev["x"], y=ev["y"], p=ev["p"], sensor_size=np.array([64, 48]))
+    np.savez(tmp_path / "k.npz", K=K, **cols)
+    cal = read_events(tmp_path / "k.npz").calibration
+    assert cal is not None and not np.any(cal.D)
+    np.savez(tmp_path / "d.npz", D=np.zeros(4), **cols)
+    with pytest.raises(FormatError, match=r"d.npz: npz: key 'D' \(distortion\) without the camera matrix 'K'"):
+        read_events(tmp_path / "d.npz")

@@ -197,3 +197,11 @@ def test_evseg_flow_reads_a_chosen_topic(tmp_path, capsys):
     assert "choose one with --topic" in capsys.readouterr().err
     assert main(["flow", str(p), "--baseline", "--topic", "/right/events", "--out", str(out), "--no-progress"]) == 0
     assert "for 200 events" in capsys.readouterr().out
+
+
+def test_a_cut_ros1_bag_points_to_reindex(tmp_path):
+    write_bag(p := tmp_path / "b.bag", {"/dvs/events": [sample_events(300)]})
+    cut = tmp_path / "cut.bag"
+    cut.write_bytes(p.read_bytes()[: p.stat().st_size // 2])
+    with pytest.raises(FormatError, match=r"cut.bag: rosbag: not a readable ROS1 bag .*`rosbag reindex` rebuilds it"):
+        read_events(cut)

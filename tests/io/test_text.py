@@ -192,3 +192,19 @@ def test_segment_and_flow_take_the_time_unit(tmp_path, capsys):
         assert main(argv) == 0, capsys.readouterr().err
     r = np.load(tmp_path / "segment.npz")
     assert r["window_t0_us"][-1] == 2_000_000 and len(r["label"]) == 3  # the last event at 2 s
+
+
+@pytest.mark.parametrize("name, text", [
+    ("bom.csv", "\ufefft,x,y,p\n0.1,1,2,1\n0.2,3,4,0\n"),  # Excel's UTF-8 byte-order mark
+    ("pandas.csv", ",t,x,y,p\n0,0.1,1,2,1\n1,0.2,3,4,0\n"),  # DataFrame.to_csv with its index
+    ("trailing.csv", "t,x,y,p,\n0.1,1,2,1,\n0.2,3,4,0,\n"),
+    ("quoted.csv", '"t","x","y","p"\n0.1,1,2,1\n0.2,3,4,0\n'),
+    ("semicolon.csv", "t;x;y;p\n0.1;1;2;1\n0.2;3;4;0\n"),  # spreadsheets with a decimal comma locale
+    ("extra.csv", "t,x,y,p,confidence\n0.1,1,2,1,0.5\n0.2,3,4,0,0.9\n"),
+])
+def test_spreadsheet_and_pandas_exports(tmp_path, name, text):
+    p = tmp_path / name
+    p.write_bytes(text.encode("utf-8"))
+    ev = read_events(p).events
+    assert ev["t"].tolist() == [100000, 200000] and ev["x"].tolist() == [1, 3]
+    assert ev["y"].tolist() == [2, 4] and ev["p"].tolist() == [1, -1]
