@@ -57,6 +57,13 @@ WORKERS = ("thread", "process")
 """Where :attr:`PipelineConfig.overlap` runs the next window's flow and preparation."""
 
 
+def _whole(value) -> bool:
+    """An integer (not a bool), or a float holding one (as YAML or arithmetic may give)."""
+    if isinstance(value, (bool, np.bool_)):
+        return False
+    return isinstance(value, (int, np.integer)) or (isinstance(value, (float, np.floating)) and float(value).is_integer())
+
+
 @dataclass(frozen=True)
 class PipelineConfig:
     """Settings of the streaming pipeline (segmentation settings live in ``segmentation``).
@@ -144,7 +151,10 @@ class PipelineConfig:
         tracked_max_targets: at most this many targets per window get ``tracked_mirrors``
             looks, the boxes taken smallest first, each whole or not at all: a bound on the
             extra time where the tracked objects are large. None: every target in the boxes.
-        segmentation: a :class:`evseg.segmentation.SegmentationConfig` (None = defaults).
+        segmentation: a :class:`evseg.segmentation.SegmentationConfig` (None = defaults), a
+            preset name (``"eed_like"``) or a mapping of its fields, so that
+            ``PipelineConfig(**yaml.safe_load(load_result(path).config))`` rebuilds the
+            configuration a result file stores.
     """
 
     window_us: int = 10_000
@@ -168,10 +178,33 @@ class PipelineConfig:
     def __post_init__(self) -> None:
         if self.flow not in ("learned", "planefit", "precomputed"):
             raise ConfigError(f"pipeline.flow must be learned, planefit or precomputed, got {self.flow!r}")
-        if int(self.window_us) <= 0:
-            raise ConfigError(f"pipeline.window_us must be positive, got {self.window_us}")
-        if self.stride_us is not None and int(self.stride_us) <= 0:
-            raise ConfigError(f"pipeline.stride_us must be positive, got {self.stride_us}")
+        for name in ("window_us", "stride_us"):
+            value = getattr(self, name)
+            if value is None and name == "stride_us":
+                continue
+            if not _whole(value) or value <= 0:
+                raise ConfigError(f"pipeline.{name} must be a positive whole number of microseconds, got {value!r}")
+            object.__setattr__(self, name, int(value))
+        for name in ("threads", "target_cell_px"):
+            value = getattr(self, name)
+            if value is not None and (not _whole(value) or value < 1):
+                raise ConfigError(f"pipeline.{name} must be an integer >= 1 or null, got {value!r}")
+        if not isinstance(self.overlap, (bool, np.bool_)):
+            raise ConfigError(f"pipeline.overlap must be true or false, got {self.overlap!r}")
+        seg = self.segmentation
+        if seg is not None:
+            from evseg.segmentation import SegmentationConfig, load_segmentation_config
+            from evseg.segmentation.config import config_from_dict
+
+            # A preset name or the mapping a result file's stored YAML holds: the same config.
+            if isinstance(seg, str):
+                seg = load_segmentation_config(seg)
+            elif isinstance(seg, dict):
+                seg = config_from_dict(seg, source="pipeline.segmentation")
+            elif not isinstance(seg, SegmentationConfig):
+                raise ConfigError("pipeline.segmentation must be a SegmentationConfig, a preset name or a mapping "
+                                  f"of its fields, got {type(seg).__name__}")
+            object.__setattr__(self, "segmentation", seg)
         if self.worker not in WORKERS:
             raise ConfigError(
                 f"pipeline.worker must be one of {', '.join(WORKERS)}, got {self.worker!r}")
@@ -567,6 +600,12 @@ class MotionSegmentationPipeline:
             # Segmentation (and the tracks) work in undistorted pixels; boxes and masks are
             # reported in the sensor's raw pixels, like the events their labels belong to.
             boxes, masks = self._to_raw_pixels(boxes, masks, ev, labels)
+        else:
+            # The reported box is the extent of the reported mask (what the evaluations score),
+            # not the region's box of node positions rounded outwards, which can be 1 px larger.
+            from evseg.undistortion import raw_box
+
+            boxes = {oid: (raw_box(masks[oid]) or box) if oid in masks else box for oid, box in boxes.items()}
         timings["propagation"] += (time.perf_counter() - t0) * 1e3
         self._predict_tracks(seg, mapping)
         if self._tracked_estimator is not None:

@@ -14,11 +14,14 @@ key                 dtype, shape    meaning
 ``masks``           uint8 (B, P)    optional: per ``boxes`` row the object's dense mask,
                                     ``np.packbits`` of the (height, width) bool mask
 ``sensor_size``     int64 (2,)      (width, height)
-``partial``         bool ()         True when the run stopped early (error, Ctrl-C): only
-                                    events up to ``n_events_processed`` carry labels
-                                    (with ``--sort``: the first ones in time order)
+``partial``         bool ()         True when the run stopped early (error, Ctrl-C): ``label``
+                                    then holds the first ``n_events_processed`` events only
+                                    (the later ones were not read; with ``--sort``: all events,
+                                    -1 after the first ones in time order)
 ``n_events_processed`` int64 ()     events covered by processed windows
 ``config``          str ()          the effective configuration, as YAML
+``t_offset_us``     int64 ()        absolute time (us) of t = 0 of the recording (ROS / DSEC
+                                    epoch times), so ``window_t0_us + t_offset_us`` is absolute
 ==================  ==============  =====================================================
 
 The writer streams ``label`` (and ``masks``) to temporary files as windows arrive and keeps
@@ -59,6 +62,7 @@ class SegmentationOutput:
     n_events_processed: int
     config: str
     masks: np.ndarray | None = None
+    t_offset_us: int = 0
 
     def mask(self, row: int) -> np.ndarray:
         """Dense (height, width) bool mask of ``boxes[row]``."""
@@ -77,8 +81,9 @@ class ResultWriter:
     """
 
     def __init__(self, path: str | Path, n_events: int | None, sensor_size: tuple[int, int], config_yaml: str = "",
-                 with_masks: bool = False):
+                 with_masks: bool = False, t_offset_us: int = 0):
         self.path = Path(path)
+        self.t_offset_us = int(t_offset_us)
         self.n_events = None if n_events is None else int(n_events)
         self.sensor_size = (int(sensor_size[0]), int(sensor_size[1]))
         self.config_yaml = config_yaml
@@ -169,6 +174,7 @@ class ResultWriter:
                     "partial": np.asarray(bool(partial)),
                     "n_events_processed": np.asarray(n_done, dtype=np.int64),
                     "config": np.asarray(self.config_yaml),
+                    "t_offset_us": np.asarray(self.t_offset_us, dtype=np.int64),
                 }
                 for key, arr in arrays.items():
                     with zf.open(f"{key}.npy", "w", force_zip64=True) as f:
@@ -240,6 +246,7 @@ def load_result(path: str | Path) -> SegmentationOutput:
                 n_events_processed=int(z["n_events_processed"]) if "n_events_processed" in z.files else len(z["label"]),
                 config=str(z["config"]) if "config" in z.files else "",
                 masks=z["masks"] if "masks" in z.files else None,
+                t_offset_us=int(z["t_offset_us"]) if "t_offset_us" in z.files else 0,
             )
     except (OSError, ValueError, zipfile.BadZipFile) as exc:
         raise FormatError(f"{path}: cannot read segmentation result ({exc})") from None

@@ -144,7 +144,8 @@ def check_job_outputs(job: SegmentJob) -> None:
     from evseg.io.output_paths import check_output_folder, check_output_path
 
     inputs = [("the recording", job.recording), ("the flow file (--flow)", job.flow_file),
-              ("the calibration (--calib)", job.calib), ("the model (--model)", job.model)]
+              ("the calibration (--calib)", job.calib), ("the model (--model)", job.model),
+              ("the configuration (--config)", Path(job.config) if job.config and Path(job.config).suffix else None)]
     check_output_path(job.out, "--out", (".npz",), inputs)
     if job.video is not None:
         check_output_path(job.video, "--video", (".mp4",), inputs)
@@ -252,9 +253,10 @@ def run_segment_job(job: SegmentJob) -> str:
         stride_us = cfg.stride_us or cfg.window_us
         n_windows = n_objects = 0
         t_wall = time.perf_counter()
-        t_first = t_last = None  # recording time covered by the windows (us)
+        t_first = t_last = None  # recording time covered: first window start to last event (us)
         ids: set[int] = set()
-        writer = ResultWriter(job.out, None, rec.sensor_size, config_yaml(cfg), with_masks=job.masks)
+        writer = ResultWriter(job.out, None, rec.sensor_size, config_yaml(cfg), with_masks=job.masks,
+                              t_offset_us=rec.t_offset_us)
         origin = span[0] if span is not None else None  # bar zero: first event, else first window
         # The video closes after the result: a video that fails to finish costs no labels.
         with pipe, VideoSink(job.video, job.frames, fps=job.video_fps) as sink, _closing(writer, lambda: n_windows > 0), \
@@ -295,7 +297,8 @@ def run_segment_job(job: SegmentJob) -> str:
                                            title=f"{res.t0_us / 1e3:.1f} ms"))
                 n_windows += 1
                 t_first = res.t0_us if t_first is None else t_first
-                t_last = res.t1_us
+                if len(res.events):  # the last window's end may lie far beyond the recording
+                    t_last = int(res.events["t"][-1])
                 n_objects += len(res.boxes)
                 ids.update(res.boxes)
                 if origin is None:
@@ -304,7 +307,7 @@ def run_segment_job(job: SegmentJob) -> str:
             writer.add_unassigned(seen[0] - writer.n_written)  # events after the last window
     wall = time.perf_counter() - t_wall
     speed = ""
-    if t_first is not None and wall > 0:
+    if t_first is not None and t_last is not None and wall > 0:
         speed = f" in {wall:.1f} s ({(t_last - t_first) / 1e6 / wall:.2f}x real time)"
     live = ""
     if job.realtime and latencies:

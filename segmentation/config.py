@@ -425,7 +425,9 @@ def load_segmentation_config(name_or_path: str | Path) -> SegmentationConfig:
     """Load a preset by name ('evimo_like') or a YAML file path into a SegmentationConfig.
 
     The YAML holds a flat mapping of SegmentationConfig fields; missing fields keep their
-    defaults, unknown fields raise :class:`ConfigError` naming the file and the field.
+    defaults, unknown fields raise :class:`ConfigError` naming the file and the field. The
+    whole pipeline configuration a result stores (its ``segmentation:`` part is taken), and
+    a ``result.npz`` itself, are read too, so that a run's settings can be reused.
     """
     import yaml
 
@@ -436,6 +438,8 @@ def load_segmentation_config(name_or_path: str | Path) -> SegmentationConfig:
             raise ConfigError(f"unknown segmentation preset '{name_or_path}'; presets: {preset_names()}")
     if not path.is_file():
         raise ConfigError(f"segmentation config file not found: {path}")
+    if path.suffix.lower() == ".npz":
+        return _from_result(path)
     try:
         data = yaml.safe_load(path.read_text())
     except UnicodeDecodeError:
@@ -444,4 +448,27 @@ def load_segmentation_config(name_or_path: str | Path) -> SegmentationConfig:
         raise ConfigError(f"{path}: cannot read segmentation config ({exc.strerror or exc})") from None
     except yaml.YAMLError as exc:
         raise ConfigError(f"{path}: {yaml_problem(exc)}") from None
-    return config_from_dict({} if data is None else data, source=str(path))
+    return config_from_dict(_segmentation_part({} if data is None else data), source=str(path))
+
+
+def _segmentation_part(data):
+    """The ``segmentation`` mapping of a stored pipeline configuration, or ``data`` itself."""
+    if isinstance(data, dict) and isinstance(data.get("segmentation"), dict) and "window_us" in data:
+        return data["segmentation"]
+    return data
+
+
+def _from_result(path: Path) -> SegmentationConfig:
+    """The segmentation settings stored in a ``result.npz`` of ``evseg segment``."""
+    import yaml
+
+    from evseg.results import load_result
+
+    stored = load_result(path).config
+    if not stored:
+        raise ConfigError(f"{path}: the result stores no configuration")
+    try:
+        data = yaml.safe_load(stored)
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: key 'config': {yaml_problem(exc)}") from None
+    return config_from_dict(_segmentation_part(data), source=f"{path}: key 'config'")

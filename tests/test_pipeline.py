@@ -802,3 +802,93 @@ def test_a_calibration_of_another_sensor_is_refused():
     cal = Calibration(K=np.array([[200.0, 0, 160], [0, 200.0, 120], [0, 0, 1]]), D=np.zeros(4), sensor_size=(320, 240))
     with pytest.raises(CalibrationError, match=r"the calibration is for 320x240 px, the sensor is 190x180"):
         MotionSegmentationPipeline(PipelineConfig(flow="precomputed"), sensor_size=(190, 180), calibration=cal)
+
+
+def test_a_results_stored_configuration_runs_again(sim, tmp_path, capsys):
+    # The stored YAML rebuilds the PipelineConfig in Python, and the result file (or its YAML)
+    # given as --config reuses its segmentation settings: the same labels.
+    import yaml
+
+    rec, d = sim
+    first = tmp_path / "first.npz"
+    assert main(["segment", str(d / "sim.npz"), "--flow", str(d / "flow.npz"), "--config", "eed_like",
+                 "--out", str(first), "--no-progress"]) == 0
+    stored = load_result(first).config
+    cfg = PipelineConfig(**yaml.safe_load(stored))
+    from evseg.segmentation import load_segmentation_config
+
+    assert cfg.segmentation == load_segmentation_config("eed_like") and cfg.flow == "precomputed"
+    (tmp_path / "stored.yaml").write_text(stored)
+    for source in (first, tmp_path / "stored.yaml"):
+        again = tmp_path / f"again_{source.suffix[1:]}.npz"
+        assert main(["segment", str(d / "sim.npz"), "--flow", str(d / "flow.npz"), "--config", str(source),
+                     "--out", str(again), "--no-progress"]) == 0, capsys.readouterr().err
+        np.testing.assert_array_equal(load_result(again).label, load_result(first).label)
+        assert load_result(again).config == stored
+    assert main(["segment", str(d / "sim.npz"), "--flow", str(d / "flow.npz"), "--config", str(first),
+                 "--out", str(first), "--no-progress"]) == 2
+    assert "is the configuration (--config)" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(overlap="no"), "pipeline.overlap must be true or false, got 'no'"),
+    (dict(threads=0), "pipeline.threads must be an integer >= 1 or null, got 0"),
+    (dict(window_us=10.5), "pipeline.window_us must be a positive whole number of microseconds, got 10.5"),
+    (dict(stride_us=True), "pipeline.stride_us must be a positive whole number"),
+    (dict(target_cell_px=0), "pipeline.target_cell_px must be an integer >= 1 or null, got 0"),
+    (dict(segmentation=3), "pipeline.segmentation must be a SegmentationConfig, a preset name or a mapping"),
+    (dict(segmentation={"cell_px": "3"}), "pipeline.segmentation: field 'cell_px'"),
+])
+def test_pipeline_config_refuses_values_that_would_fail_later(kwargs, message):
+    with pytest.raises(ConfigError, match=re.escape(message)):
+        PipelineConfig(**kwargs)
+    assert PipelineConfig(window_us=10_000.0).window_us == 10_000  # a whole float (YAML, arithmetic) is fine
+
+
+def test_reported_boxes_are_the_extent_of_the_reported_masks(sim):
+    # The evaluations score the mask; a box 1 px larger than it would score differently.
+    from evseg.undistortion import raw_box
+
+    rec, d = sim
+    results = _run(rec, load_flow_file(d / "flow.npz", n_events=len(rec.stream)))
+    n = 0
+    for r in results:
+        for oid, box in r.boxes.items():
+            assert box == raw_box(r.masks[oid]), (r.index, oid)
+            n += 1
+    assert n >= 4  # objects in every window of this scene
+
+
+def test_the_summarys_real_time_factor_counts_recording_time_not_window_time(sim, tmp_path, capsys, monkeypatch):
+    # One 1 s window over a 40 ms recording: the run covered 40 ms of recording, not 1 s.
+    import types
+
+    import evseg.runner
+
+    rec, d = sim
+    t = rec.stream.events["t"]
+    calls = []
+
+    def clock():  # the job's wall clock: 0 at the start, 1 s at the end
+        calls.append(None)
+        return 0.0 if len(calls) == 1 else 1.0
+
+    monkeypatch.setattr(evseg.runner, "time", types.SimpleNamespace(perf_counter=clock))
+    assert main(["segment", str(d / "sim.npz"), "--flow", str(d / "flow.npz"), "--window-ms", "1000",
+                 "--out", str(tmp_path / "r.npz"), "--no-progress"]) == 0
+    span_s = (t[-1] - t[0]) / 1e6
+    assert f"1 windows in 1.0 s ({span_s:.2f}x real time)" in capsys.readouterr().out
+
+
+def test_the_result_keeps_the_recordings_absolute_time_offset(sim, tmp_path):
+    from evseg.io import write_h5
+
+    rec, d = sim
+    stream = EventStream(rec.stream.events, rec.stream.sensor_size, t_offset_us=1_600_000_000_000_000)
+    write_h5(stream, tmp_path / "abs.h5")
+    out = tmp_path / "r.npz"
+    assert main(["segment", str(tmp_path / "abs.h5"), "--flow", str(d / "flow.npz"), "--out", str(out),
+                 "--no-progress"]) == 0
+    r = load_result(out)
+    assert r.t_offset_us == 1_600_000_000_000_000
+    assert r.window_t0_us[0] == rec.stream.events["t"][0]  # windows stay relative, as the labels' events

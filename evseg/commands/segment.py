@@ -33,7 +33,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="calibration YAML (ROS camera_info / EMSGC, or a Kalibr camchain)")
     p.add_argument("--calib-camera", default=None, metavar="NAME",
                    help="camera of a Kalibr camchain with several (cam0, cam1, ...)")
-    p.add_argument("--config", default=None, help="segmentation preset name or YAML file")
+    p.add_argument("--config", default=None,
+                   help="segmentation preset name or YAML file; or a result.npz (or the config it stores) whose "
+                        "segmentation settings to reuse (window, flow and the other options come from this "
+                        "command line)")
     p.add_argument("--window-ms", type=float, default=10.0, help="window duration (ms)")
     p.add_argument("--stride-ms", type=float, default=None, help="time between windows (ms); default = window")
     p.add_argument("--flow-context-ms", type=float, default=20.0,
