@@ -109,6 +109,23 @@ def empty_events() -> np.ndarray:
     return np.empty(0, dtype=EVENT_DTYPE)
 
 
+def checked_sensor_size(sensor_size) -> tuple[int, int]:
+    """``(width, height)`` as two positive ints; a fractional, negative or malformed size is an
+    :class:`EventDataError` (it would otherwise be truncated or fail deep inside numpy).
+
+    >>> checked_sensor_size((346, 260.0))
+    (346, 260)
+    """
+    try:
+        w, h = sensor_size
+        ok = all(not isinstance(v, (bool, np.bool_)) and float(v) == int(v) and int(v) > 0 for v in (w, h))
+    except (TypeError, ValueError, OverflowError):
+        ok = False
+    if not ok:
+        raise EventDataError(f"sensor_size must be (width, height) in whole pixels > 0, got {sensor_size!r}")
+    return int(w), int(h)
+
+
 def validate_events(
     events: np.ndarray,
     sensor_size: tuple[int, int] | None = None,
@@ -165,10 +182,10 @@ class EventStream:
     calibration: "Calibration | None" = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
-        w, h = self.sensor_size
-        if int(w) <= 0 or int(h) <= 0:
-            raise EventDataError(f"sensor_size must be positive (width, height), got {self.sensor_size}")
-        object.__setattr__(self, "sensor_size", (int(w), int(h)))
+        object.__setattr__(self, "sensor_size", checked_sensor_size(self.sensor_size))
+        # Unsorted or off-sensor events would make durations, windows and labels silently
+        # wrong later; one O(N) pass here names the first bad event instead.
+        validate_events(self.events, self.sensor_size, source="EventStream.events")
 
     def __len__(self) -> int:
         return len(self.events)
@@ -203,8 +220,16 @@ class EventStream:
         from evseg.windows import time_window_slices
 
         for sl in time_window_slices(self.events["t"], window_us, stride_us):
-            yield self.with_events(self.events[sl])
+            yield self._view(self.events[sl])
 
     def with_events(self, events: np.ndarray) -> "EventStream":
-        """Same sensor, offset and calibration, other events."""
+        """Same sensor, offset and calibration, other events (checked as in the constructor)."""
         return EventStream(events, self.sensor_size, self.t_offset_us, self.calibration)
+
+    def _view(self, events: np.ndarray) -> "EventStream":
+        """:meth:`with_events` for a slice of this stream's own events: valid already."""
+        out = object.__new__(EventStream)
+        for name, value in (("events", events), ("sensor_size", self.sensor_size),
+                            ("t_offset_us", self.t_offset_us), ("calibration", self.calibration)):
+            object.__setattr__(out, name, value)
+        return out

@@ -37,7 +37,7 @@ import numpy as np
 
 from evseg.calibration import Calibration
 from evseg.errors import CalibrationError, ConfigError, EventDataError, EvsegError, FormatError
-from evseg.events import EVENT_DTYPE, EventStream, first_off_sensor
+from evseg.events import EVENT_DTYPE, EventStream, checked_sensor_size, first_off_sensor
 from evseg.flow_file import WindowFlow, check_flow, load_flow_file, slice_flow  # noqa: F401 (load_flow_file: public here too)
 from evseg.tracking import ObjectTracker
 from evseg.undistortion import UndistortionTable, undistort_normal_flow
@@ -300,7 +300,7 @@ class MotionSegmentationPipeline:
         if sensor_size is None:
             raise ConfigError("the pipeline needs the sensor size (width, height)")
         self.config = config if config.segmentation is not None else replace(config, segmentation=SegmentationConfig())
-        self.sensor_size = (int(sensor_size[0]), int(sensor_size[1]))
+        self.sensor_size = checked_sensor_size(sensor_size)  # a fractional size would be truncated
         if calibration is not None and tuple(int(v) for v in calibration.sensor_size) != self.sensor_size:
             # Intrinsics of another camera or resolution would undistort every event wrongly.
             raise CalibrationError(

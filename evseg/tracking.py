@@ -2,8 +2,8 @@
 
 The segmentation numbers IMOs 1..K afresh in every window. To give users stable ids, each
 tracked object's box is moved to the next window (by the caller, with the object's motion
-model) and matched one to one to the new IMO boxes by IoU (Hungarian). A matched IMO keeps
-the track's id; an unmatched IMO starts a new id; a track unmatched for ``max_missed``
+model) and matched one to one to the new IMO boxes by IoU (Hungarian; tracks found in more
+than one window first, then the others). A matched IMO keeps the track's id; an unmatched IMO starts a new id; a track unmatched for ``max_missed``
 windows is dropped. Each track counts the windows it was found in (``hits``), so a caller can
 report an object only once it has been seen more than once (SORT's ``min_hits``).
 """
@@ -69,12 +69,19 @@ class ObjectTracker:
         labels = sorted(boxes)
         track_ids = sorted(self.tracks)
         mapping: dict[int, int] = {}
-        if labels and track_ids:
-            iou = np.array([[box_iou(boxes[l], self.tracks[t]) for t in track_ids] for l in labels])
+        # Tracks found in more than one window are matched first, then the others to what is
+        # left (the confirmed / tentative order of ByteTrack and DeepSORT): an object seen as
+        # two pieces for one window must not hand its id to the piece that started a track.
+        for tier in ([t for t in track_ids if self.hits.get(t, 0) >= 2],
+                     [t for t in track_ids if self.hits.get(t, 0) < 2]):
+            free = [l for l in labels if l not in mapping]
+            if not free or not tier:
+                continue
+            iou = np.array([[box_iou(boxes[l], self.tracks[t]) for t in tier] for l in free])
             rows, cols = linear_sum_assignment(-iou)
             for r, c in zip(rows, cols):
                 if iou[r, c] >= self.min_iou:
-                    mapping[labels[r]] = track_ids[c]
+                    mapping[free[r]] = tier[c]
         for l in labels:
             if l not in mapping:
                 mapping[l] = self.next_id

@@ -47,3 +47,24 @@ def test_make_events_refuses_values_it_would_change(field, values, message):
         make_events(**args)
     whole = make_events(x=[1.0, 2.0], y=[1, 1], t=np.array([10.0, 20.0]), p=[True, False])
     assert whole["t"].tolist() == [10, 20] and whole["p"].tolist() == [1, -1]
+
+
+@pytest.mark.parametrize("events, size, message", [
+    (make_events([0, 1], [0, 0], [5, 3], [1, 1]), (8, 8), r"EventStream.events: field 't' is not sorted: event 1"),
+    (make_events([0, 9], [0, 0], [0, 1], [1, 1]), (8, 8), r"field 'x' = 9 at event 1 is outside the sensor \(8x8"),
+    (np.zeros((3, 4)), (8, 8), r"expected an array of dtype .* got float64"),
+    ([(0, 0, 0, 1)], (8, 8), r"expected an array of dtype .* got list"),
+    (make_events([0], [0], [0], [1]), (4.7, 4), r"sensor_size must be \(width, height\) in whole pixels > 0, got \(4.7, 4\)"),
+    (make_events([0], [0], [0], [1]), (-4, 5), r"in whole pixels > 0, got \(-4, 5\)"),
+    (make_events([0], [0], [0], [1]), (8,), r"in whole pixels > 0, got \(8,\)"),
+])
+def test_an_event_stream_refuses_what_would_make_its_windows_wrong(events, size, message):
+    with pytest.raises(EventDataError, match=message):
+        EventStream(events, size)
+
+
+def test_the_pipeline_refuses_a_fractional_sensor_size():
+    from evseg.pipeline import MotionSegmentationPipeline, PipelineConfig
+
+    with pytest.raises(EventDataError, match=r"got \(346.9, 260\)"):
+        MotionSegmentationPipeline(PipelineConfig(flow="planefit"), sensor_size=(346.9, 260))

@@ -37,3 +37,18 @@ def test_hits_count_the_windows_a_track_was_found_in():
     assert tr.hits == {1: 2, 2: 1}
     tr.update({1: (80, 80, 89, 89)})  # track 1 missed twice: dropped
     assert tr.hits == {2: 2}
+
+
+def test_a_piece_split_off_for_one_window_does_not_take_the_objects_id():
+    # A ball tracked for 3 windows comes out as two overlapping pieces in window 4 (the second
+    # piece starts track 2), then as one object again whose box matches track 2 a little
+    # better: it is still object 1.
+    tr = ObjectTracker()
+    for k in range(3):
+        assert tr.update({1: (10 + k, 10, 40 + k, 40)}) == {1: 1}
+    assert tr.update({1: (13, 10, 43, 40), 2: (15, 12, 41, 42)}) == {1: 1, 2: 2}
+    assert tr.update({1: (15, 12, 42, 42)}) == {1: 1}
+    # Two tentative tracks still compete by IoU alone.
+    tr = ObjectTracker()
+    tr.update({1: (0, 0, 9, 9), 2: (2, 0, 11, 9)})
+    assert tr.update({1: (2, 0, 11, 9)}) == {1: 2}

@@ -144,6 +144,23 @@ class PlaneFitNormalFlow:
     max_rms_px: float = 2.0
     refit_rounds: int = 1
 
+    def __post_init__(self) -> None:
+        from evseg.errors import ConfigError
+
+        def whole(v) -> bool:
+            return isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_))
+
+        # radius 0 fits no plane (every flow NaN, silently); a negative one indexes backwards.
+        for name, least in (("radius_px", 1), ("min_points", 4), ("refit_rounds", 0)):
+            value = getattr(self, name)
+            if not whole(value) or value < least:
+                raise ConfigError(f"PlaneFitNormalFlow.{name} must be an integer >= {least}, got {value!r}")
+        if self.max_dt_us is not None and not (whole(self.max_dt_us) and self.max_dt_us > 0):
+            raise ConfigError(f"PlaneFitNormalFlow.max_dt_us must be a positive integer (us) or None, "
+                              f"got {self.max_dt_us!r}")
+        if not self.max_rms_px > 0:
+            raise ConfigError(f"PlaneFitNormalFlow.max_rms_px must be positive (px), got {self.max_rms_px!r}")
+
     def __call__(
         self,
         events: np.ndarray,

@@ -52,9 +52,16 @@ def simulate(
         per-event label, optical flow and normal flow (see
         :mod:`evseg.simulator.ground_truth`).
     """
-    duration_us = int(duration_us)
+    for name, value in (("seed", seed), ("duration_us", duration_us)):
+        # int(1.5) would silently simulate seed 1 (and record it as 1).
+        if isinstance(value, (bool, np.bool_)) or not (isinstance(value, (int, np.integer))
+                                                       or (isinstance(value, float) and value.is_integer())):
+            raise ConfigError(f"{name} must be a whole number, got {value!r}")
+    seed, duration_us = int(seed), int(duration_us)
     if duration_us <= 0:
         raise ConfigError(f"duration must be positive, got {duration_us} us")
+    if seed < 0:
+        raise ConfigError(f"seed must be >= 0, got {seed}")
     scene = sample_scene(cfg, seed, duration_us)
     sensor = cfg.sensor
     width = sensor.width

@@ -19,6 +19,7 @@ with a :class:`~evseg.errors.ConfigError` naming the key and the file.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import types
 import typing
@@ -80,6 +81,9 @@ class SensorConfig:
     log_eps: float = 0.02
     random_initial_level: bool = True
 
+    def __post_init__(self) -> None:
+        _check(self)
+
 
 @dataclass(frozen=True)
 class TextureConfig:
@@ -104,6 +108,9 @@ class TextureConfig:
     thickness_px: Range = (1.5, 3.0)
     density: float = 1.0
     blur_px: float = 0.7
+
+    def __post_init__(self) -> None:
+        _check(self)
 
 
 @dataclass(frozen=True)
@@ -133,6 +140,9 @@ class MotionConfig:
     wobble_hz: Range = (0.5, 3.0)
     rotation_deg_s: Range = (0.0, 0.0)
     zoom_per_s: Range = (0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        _check(self)
 
 
 @dataclass(frozen=True)
@@ -171,6 +181,9 @@ class ObjectConfig:
     in_view: float = 0.7
     min_log_contrast: float = 0.45
 
+    def __post_init__(self) -> None:
+        _check(self)
+
 
 @dataclass(frozen=True)
 class ForegroundConfig:
@@ -188,6 +201,9 @@ class ForegroundConfig:
     parallax: Range = (1.5, 2.5)
     probability: float = 1.0
 
+    def __post_init__(self) -> None:
+        _check(self)
+
 
 @dataclass(frozen=True)
 class LightingConfig:
@@ -203,6 +219,9 @@ class LightingConfig:
     gain: Range = (0.6, 1.0)
     flicker_amplitude: float = 0.0
     flicker_hz: float = 100.0
+
+    def __post_init__(self) -> None:
+        _check(self)
 
 
 @dataclass(frozen=True)
@@ -239,6 +258,9 @@ class SceneConfig:
     gradient_sigma_px: float = 1.0
     label_coverage: float = 0.25
     mask_coverage: float = 0.5
+
+    def __post_init__(self) -> None:
+        _check(self)
 
     def with_sensor_size(self, width: int, height: int) -> "SceneConfig":
         """Same scene on a sensor of another resolution (sizes in px are kept)."""
@@ -288,6 +310,22 @@ def _convert(tp: Any, value: Any, where: str, source: str) -> Any:
     return value
 
 
+class _Invalid(ConfigError):
+    """A config value out of range: ``key`` and ``problem``, to be placed in a message."""
+
+    def __init__(self, key: str, problem: str, owner: str) -> None:
+        super().__init__(f"{owner}: '{key}' {problem}")
+        self.key, self.problem = key, problem
+
+
+def _check(obj: Any) -> None:
+    """Raise :class:`ConfigError` for the first value of ``obj`` out of range (the dataclasses
+    call it when made, so the Python API refuses what a YAML file would be refused for)."""
+    found = _problem(obj)
+    if found is not None:
+        raise _Invalid(*found, type(obj).__name__)
+
+
 def _from_dict(cls: type, data: Any, where: str, source: str):
     if data is None:
         data = {}
@@ -305,41 +343,68 @@ def _from_dict(cls: type, data: Any, where: str, source: str):
     kwargs = {
         k: _convert(hints[k], v, f"{where}.{k}" if where else k, source) for k, v in data.items()
     }
-    obj = cls(**kwargs)
-    _validate(obj, where, source)
-    return obj
+    try:
+        return cls(**kwargs)
+    except _Invalid as exc:
+        raise ConfigError(f"{source}: '{where + '.' if where else ''}{exc.key}' {exc.problem}") from None
 
 
-def _validate(obj: Any, where: str, source: str) -> None:
-    """Value checks that the types alone do not catch."""
-    def bad(key: str, msg: str) -> ConfigError:
-        return ConfigError(f"{source}: '{where + '.' if where else ''}{key}' {msg}")
+@functools.lru_cache(maxsize=None)
+def _type_hints(cls: type) -> dict:
+    return typing.get_type_hints(cls)
+
+
+def _problem(obj: Any) -> tuple[str, str] | None:
+    """``(field, what is wrong)`` for the first value checks that the types alone do not
+    catch, or None."""
+    def bad(key: str, msg: str) -> tuple[str, str]:
+        return key, msg
 
     if isinstance(obj, TextureConfig):
         for fam in obj.family:
             if fam not in TEXTURE_FAMILIES:
-                raise bad("family", f"has unknown texture family '{fam}' (known: {', '.join(TEXTURE_FAMILIES)})")
+                return bad("family", f"has unknown texture family '{fam}' (known: {', '.join(TEXTURE_FAMILIES)})")
         if not obj.family:
-            raise bad("family", "must name at least one texture family")
+            return bad("family", "must name at least one texture family")
     if isinstance(obj, ObjectConfig):
         for s in obj.shape:
             if s not in SHAPES:
-                raise bad("shape", f"has unknown shape '{s}' (known: {', '.join(SHAPES)})")
+                return bad("shape", f"has unknown shape '{s}' (known: {', '.join(SHAPES)})")
         if obj.count[0] < 0 or obj.count[1] < obj.count[0]:
-            raise bad("count", f"must be a range 0 <= lo <= hi, got {list(obj.count)}")
+            return bad("count", f"must be a range 0 <= lo <= hi, got {list(obj.count)}")
+        if not obj.size_px[0] > 0:
+            return bad("size_px", f"must be positive, got {list(obj.size_px)}")
+        if not (0 < obj.aspect[0] and obj.aspect[1] <= 1):
+            return bad("aspect", f"must lie in (0, 1] (short / long extent), got {list(obj.aspect)}")
+        if not 0 <= obj.in_view <= 1:
+            return bad("in_view", f"must be in [0, 1], got {obj.in_view}")
+    if isinstance(obj, MotionConfig):
+        for key in ("speed_px_s", "wobble", "wobble_hz", "rotation_deg_s"):
+            if not getattr(obj, key)[0] >= 0:
+                return bad(key, f"must be >= 0, got {list(getattr(obj, key))}")
     if isinstance(obj, SensorConfig):
         if obj.width <= 0 or obj.height <= 0:
-            raise bad("width", f"and height must be positive, got {obj.width}x{obj.height}")
+            return bad("width", f"and height must be positive, got {obj.width}x{obj.height}")
         if obj.c_pos <= 0 or obj.c_neg <= 0:
-            raise bad("c_pos", "and c_neg must be positive log-intensity thresholds")
+            return bad("c_pos", "and c_neg must be positive log-intensity thresholds")
+        for key in ("c_sigma", "refractory_us", "noise_rate_hz", "hot_pixel_rate_hz"):
+            if not getattr(obj, key) >= 0:
+                return bad(key, f"must be >= 0, got {getattr(obj, key)}")
+        if not 0 <= obj.hot_pixel_fraction <= 1:
+            return bad("hot_pixel_fraction", f"must be in [0, 1], got {obj.hot_pixel_fraction}")
+        if not obj.log_eps > 0:
+            return bad("log_eps", f"must be positive, got {obj.log_eps}")
     if isinstance(obj, SceneConfig):
         if not 0 < obj.max_step_px <= 2:
-            raise bad("max_step_px", f"must be in (0, 2] px, got {obj.max_step_px}")
+            return bad("max_step_px", f"must be in (0, 2] px, got {obj.max_step_px}")
+        if not obj.max_step_us > 0:
+            return bad("max_step_us", f"must be positive, got {obj.max_step_us}")
     for f in dataclasses.fields(obj):
-        if typing.get_type_hints(type(obj))[f.name] == Range:
+        if _type_hints(type(obj))[f.name] == Range:
             lo, hi = getattr(obj, f.name)
             if hi < lo:
-                raise bad(f.name, f"range must have lo <= hi, got [{lo}, {hi}]")
+                return bad(f.name, f"range must have lo <= hi, got [{lo}, {hi}]")
+    return None
 
 
 def scene_from_dict(data: dict, source: str = "scene config") -> SceneConfig:

@@ -6,7 +6,7 @@ import pytest
 
 from evseg.errors import ConfigError
 from evseg.simulator import list_scene_presets, load_scene_preset, scene_from_dict, scene_to_dict, simulate
-from evseg.simulator.scene import SENSOR_PRESETS, ObjectConfig, SceneConfig, load_scene_file
+from evseg.simulator.scene import SENSOR_PRESETS, ObjectConfig, SceneConfig, SensorConfig, load_scene_file
 
 REQUIRED = {"eed_like", "evimo_like", "driving_like", "ego_only"}
 
@@ -82,3 +82,30 @@ def test_with_sensor_size_keeps_everything_else():
     assert (small.sensor.width, small.sensor.height) == (100, 80)
     assert dataclasses.replace(small, sensor=cfg.sensor) == cfg
     assert isinstance(cfg.objects[0], ObjectConfig) and isinstance(cfg, SceneConfig)
+
+
+@pytest.mark.parametrize("make, message", [
+    (lambda: SceneConfig(sensor=SensorConfig(width=-5)),
+     "SensorConfig: 'width' and height must be positive, got -5x260"),
+    (lambda: ObjectConfig(count=(3, 1)), "ObjectConfig: 'count' must be a range 0 <= lo <= hi, got [3, 1]"),
+    (lambda: ObjectConfig(aspect=(0.5, 2.0)), "ObjectConfig: 'aspect' must lie in (0, 1]"),
+])
+def test_the_python_api_refuses_what_a_yaml_file_is_refused_for(make, message):
+    with pytest.raises(ConfigError) as info:
+        make()
+    assert message in str(info.value)
+
+
+def test_refractory_and_speed_ranges_are_checked_when_made():
+    from evseg.simulator.scene import MotionConfig
+
+    with pytest.raises(ConfigError, match="SensorConfig: 'refractory_us' must be >= 0, got -1"):
+        SensorConfig(refractory_us=-1)
+    with pytest.raises(ConfigError, match=r"MotionConfig: 'speed_px_s' range must have lo <= hi, got \[5, 1\]"):
+        MotionConfig(speed_px_s=(5, 1))
+
+
+@pytest.mark.parametrize("seed", [1.5, "1", True, -1])
+def test_simulate_refuses_a_seed_it_would_change(seed):
+    with pytest.raises(ConfigError, match="seed must be"):
+        simulate(load_scene_preset("evimo_like"), seed=seed, duration_us=1000)

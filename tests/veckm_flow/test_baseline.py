@@ -1,3 +1,5 @@
+import re
+
 import numpy as np
 import pytest
 
@@ -80,3 +82,18 @@ def test_random_timestamps_are_rejected_by_the_scale_free_residual_rule(make_sli
     ev = make_slice(3000, (40, 30))
     assert PlaneFitNormalFlow()(ev, (40, 30)).valid.mean() < 0.02
     assert PlaneFitNormalFlow(max_rms_px=1e9)(ev, (40, 30)).valid.mean() == 1.0
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(radius_px=0), "PlaneFitNormalFlow.radius_px must be an integer >= 1, got 0"),
+    (dict(radius_px=-1), "PlaneFitNormalFlow.radius_px must be an integer >= 1, got -1"),
+    (dict(radius_px=2.5), "PlaneFitNormalFlow.radius_px must be an integer >= 1, got 2.5"),
+    (dict(min_points=2), "PlaneFitNormalFlow.min_points must be an integer >= 4, got 2"),
+    (dict(max_dt_us=0), "PlaneFitNormalFlow.max_dt_us must be a positive integer"),
+    (dict(max_rms_px=0.0), "PlaneFitNormalFlow.max_rms_px must be positive"),
+])
+def test_settings_that_would_give_no_flow_or_crash_are_refused(kwargs, message):
+    from evseg.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=re.escape(message)):
+        PlaneFitNormalFlow(**kwargs)
