@@ -312,8 +312,9 @@ def run_segment_job(job: SegmentJob) -> str:
     live = ""
     if job.realtime and latencies:
         live = (f"; replayed at {job.speed:g}x the sensor's pace: {n_windows} of {n_windows + dropped[0]} windows "
-                f"segmented, {dropped[0]} dropped to keep up (their events are labelled -1), labels "
-                f"{np.median(latencies):.1f} ms after their window was complete (median; p90 "
+                + (f"segmented, {dropped[0]} dropped to keep up (their events are labelled -1), labels "
+                   if dropped[0] else "segmented, none dropped, labels ")
+                + f"{np.median(latencies):.1f} ms after their window was complete (median; p90 "
                 f"{np.percentile(latencies, 90):.1f} ms)")
     return (
         f"wrote {job.out}: {writer.n_written} events, {n_windows} windows{speed}, "

@@ -37,6 +37,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, required=True, help="output .npz (index, nx, ny, uncertainty)")
     p.add_argument("--model", type=Path, default=None, help="ONNX normal-flow model (default: the shipped one)")
     p.add_argument("--baseline", action="store_true", help="use the plane-fit baseline instead of the model")
+    p.add_argument("--flow-method", choices=["learned", "planefit"], default=None,
+                   help="the estimator, as evseg segment names it: planefit = --baseline (default: learned)")
     p.add_argument("--no-fast-edges", action="store_true",
                    help="skip the time-stretched second look at fast flows (docs/normal_flow.md)")
     p.add_argument("--no-slow-edges", action="store_true",
@@ -51,7 +53,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--calib-camera", default=None, metavar="NAME",
                    help="camera of a Kalibr camchain with several (cam0, cam1, ...)")
     p.add_argument("--window-ms", type=float, default=10.0, help="slice duration (ms): the targets of one slice")
-    p.add_argument("--context-ms", type=float, default=20.0,
+    p.add_argument("--context-ms", "--flow-context-ms", dest="context_ms", type=float, default=20.0,
                    help="events of this span (ms) before a slice are neighbours of its targets too (0: the slice only)")
     p.add_argument("--targets", choices=["cell", "all"], default="cell", help="which events get a flow")
     p.add_argument("--cell-px", type=int, default=2, help="cell side (px) for --targets cell")
@@ -104,6 +106,10 @@ def run(args: argparse.Namespace) -> int:
 
     from evseg.calibration import load_calibration
     from evseg.errors import EvsegError
+
+    if args.flow_method == "learned" and args.baseline:
+        raise EvsegError("--flow-method learned and --baseline contradict each other: give one")
+    args.baseline = args.baseline or args.flow_method == "planefit"
     from evseg.io import open_recording, parse_sensor_size
     from evseg.flow_file import save_flow_file
     from evseg.veckm_flow import NormalFlow, select_targets

@@ -26,7 +26,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--list", action="store_true", help="list the scene presets and exit")
     p.add_argument("--seed", type=int, default=0, help="random seed (the recording is deterministic in it)")
     p.add_argument("--duration", type=float, default=0.2, help="duration in seconds")
-    p.add_argument("--sensor", default=None, help="override the sensor size, WIDTHxHEIGHT in px (e.g. 640x480)")
+    p.add_argument("--sensor", "--sensor-size", dest="sensor", default=None, help="override the sensor size, WIDTHxHEIGHT in px (e.g. 640x480)")
     p.add_argument("--out", type=Path, default=Path("sim.npz"), help="output .npz")
     p.add_argument("--preview", type=Path, default=None,
                    help="also write a PNG of the busiest 10 ms window: events, GT labels, normal and optical flow")

@@ -8,8 +8,9 @@ from evseg.simulator import load_recording
 
 
 def test_simulate_writes_a_loadable_recording_and_a_preview(tmp_path, capsys):
+    # --sensor-size as the other commands name it (--sensor works too, below).
     out, png = tmp_path / "sim.npz", tmp_path / "preview.png"
-    rc = main(["simulate", "--preset", "evimo_like", "--sensor", "96x72", "--duration", "0.02",
+    rc = main(["simulate", "--preset", "evimo_like", "--sensor-size", "96x72", "--duration", "0.02",
                "--seed", "3", "--out", str(out), "--preview", str(png)])
     assert rc == 0
     rec = load_recording(out)

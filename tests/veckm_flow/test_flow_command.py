@@ -107,3 +107,18 @@ def test_flow_option_errors_are_user_errors(recording, tmp_path, capsys):
     # A context beyond the encoder's longest slice (17.9 min) is refused before reading.
     assert main(["flow", str(path), "--out", str(tmp_path / "x.npz"), "--context-ms", "2e6"]) == 2
     assert "--context-ms must be at most" in capsys.readouterr().err
+
+
+def test_flow_takes_the_option_names_of_segment(recording, tmp_path):
+    # --flow-method planefit and --flow-context-ms are segment's names for --baseline and
+    # --context-ms: either spelling gives the same file.
+    path, _ = recording
+    a, b = tmp_path / "a.npz", tmp_path / "b.npz"
+    assert main(["flow", str(path), "--out", str(a), "--baseline", "--context-ms", "10", "--no-progress"]) == 0
+    assert main(["flow", str(path), "--out", str(b), "--flow-method", "planefit", "--flow-context-ms", "10",
+                 "--no-progress"]) == 0
+    za, zb = np.load(a), np.load(b)
+    assert str(zb["method"]) == "planefit"
+    np.testing.assert_array_equal(za["nx"], zb["nx"])
+    np.testing.assert_array_equal(za["index"], zb["index"])
+    assert main(["flow", str(path), "--out", str(b), "--flow-method", "learned", "--baseline"]) == 2
