@@ -41,7 +41,7 @@ from typing import TYPE_CHECKING, Callable, Iterable, Iterator
 import numpy as np
 
 from evseg.errors import ConfigError, EventDataError
-from evseg.events import EVENT_DTYPE, first_off_sensor
+from evseg.events import EVENT_DTYPE, EventStream, first_off_sensor
 from evseg.windows import Window
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -186,8 +186,23 @@ def run_live(
         :class:`LiveResult` per segmented window, in time order; ``result.window.first_event``
         counts the source's events before the window, as ``pipeline.run`` does.
     """
-    if max_lag_us is not None and (int(max_lag_us) != max_lag_us or max_lag_us < 0):
+    if max_lag_us is not None and not (isinstance(max_lag_us, (int, float, np.integer, np.floating))
+                                       and not isinstance(max_lag_us, (bool, np.bool_))
+                                       and float(max_lag_us).is_integer() and max_lag_us >= 0):
         raise ConfigError(f"max_lag_us must be a non-negative integer (us) or None, got {max_lag_us!r}")
+    from evseg.pipeline import MotionSegmentationPipeline
+
+    if not isinstance(pipeline, MotionSegmentationPipeline):
+        raise ConfigError(f"run_live needs a MotionSegmentationPipeline, got {type(pipeline).__name__}")
+    # One array (or stream) of events is a source of one packet, as pipeline.run takes it.
+    if isinstance(source, EventStream):
+        source = [source.events]
+    elif isinstance(source, np.ndarray):
+        source = [source]
+    return pipeline._exclusive(_run_live(pipeline, source, max_lag_us, clock))
+
+
+def _run_live(pipeline, source, max_lag_us, clock) -> Iterator[LiveResult]:
     cfg = pipeline.config
     if cfg.flow == "precomputed":
         raise ConfigError("a live run estimates its own normal flow: pipeline.flow must be learned or planefit, "

@@ -341,7 +341,10 @@ class MotionSegmentationPipeline:
         self.close()
 
     def reset(self) -> None:
-        """Forget the previous window (motion prediction) and the object tracks."""
+        """Forget the previous window (motion prediction) and the object tracks. A run still
+        being iterated (:meth:`run`, :func:`evseg.live.run_live`) is superseded: resuming it
+        raises instead of mixing its windows with the new state."""
+        self._run_token = object()
         self._previous = None
         self._tracker = ObjectTracker()
         # object id -> (last model, last per-window displacement px) of each live track
@@ -690,6 +693,30 @@ class MotionSegmentationPipeline:
         past the last event raises :class:`~evseg.errors.FormatError` naming ``flow_source``
         once the stream has ended.
         """
+        return self._exclusive(self._run(source, precomputed_flow, flow_source))
+
+    def _exclusive(self, run: Iterator[WindowResult]) -> Iterator[WindowResult]:
+        """``run``'s results while it owns the pipeline's state: once another run (or
+        :meth:`reset`) has started afresh, resuming this one raises :class:`ConfigError`
+        rather than yielding labels from the other run's tracks."""
+        token = None
+        try:
+            while True:
+                if token is not None and self._run_token is not token:
+                    raise ConfigError(
+                        "this run of the pipeline was superseded: a later run(), run_live() or reset() on the same "
+                        "pipeline started afresh; iterate one run at a time, or use one pipeline per stream")
+                try:
+                    result = next(run)
+                except StopIteration:
+                    return
+                if token is None:
+                    token = self._run_token  # the run's reset() has happened by its first window
+                yield result
+        finally:
+            run.close()
+
+    def _run(self, source, precomputed_flow, flow_source: str) -> Iterator[WindowResult]:
         if precomputed_flow is not None:
             precomputed_flow = check_flow(precomputed_flow, source=f"MotionSegmentationPipeline.run: {flow_source}")
         # Each run starts afresh (no tracks or motion prediction from an earlier run, object ids

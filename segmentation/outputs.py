@@ -321,10 +321,21 @@ def nearest_node_index(
     Exact nearest node (Euclidean, ties to the lowest node index) by a bucket-grid search
     (:func:`evseg.segmentation._kernels.grid_nearest`), about 5x faster than a k-d tree here.
     """
+    from evseg.errors import EventDataError
     from evseg.segmentation._kernels import grid_nearest
 
     x = np.ascontiguousarray(x, dtype=np.float64)
     y = np.ascontiguousarray(y, dtype=np.float64)
+    # The compiled search indexes x, y and the nodes without bounds checks: a length mismatch
+    # or a NaN would read past the arrays (a crash, or labels from garbage) instead of failing.
+    for a, b, what in ((x, y, "the points' x and y"), (node_x, node_y, "the nodes' x and y")):
+        if np.ndim(a) != 1 or np.shape(a) != np.shape(b):
+            raise EventDataError(f"nearest node: {what} must be 1-D of one length, got shapes "
+                                 f"{np.shape(a)} and {np.shape(b)}")
+    if not (np.isfinite(x).all() and np.isfinite(y).all()):
+        raise EventDataError("nearest node: the points' x and y must be finite positions (px)")
+    if not float(max_distance_px) >= 0:
+        raise EventDataError(f"nearest node: max_distance_px must be >= 0 px, got {max_distance_px}")
     if len(node_x) == 0 or len(x) == 0:
         return np.full(len(x), -1, dtype=np.int64)
     # Buckets of a third of the search radius: a query scans at most 5 rings of cells.

@@ -892,3 +892,34 @@ def test_the_result_keeps_the_recordings_absolute_time_offset(sim, tmp_path):
     r = load_result(out)
     assert r.t_offset_us == 1_600_000_000_000_000
     assert r.window_t0_us[0] == rec.stream.events["t"][0]  # windows stay relative, as the labels' events
+
+
+def test_a_run_superseded_by_another_on_the_same_pipeline_says_so(sim):
+    # Two run() generators on one pipeline share its tracks: interleaved, the first one's
+    # labels would come from the second one's state. Resuming it raises instead.
+    rec, d = sim
+    flow = load_flow_file(d / "flow.npz", n_events=len(rec.stream))
+    pipe = MotionSegmentationPipeline(PipelineConfig(flow="precomputed"), sensor_size=rec.stream.sensor_size)
+    first = pipe.run(rec.stream, precomputed_flow=flow)
+    next(first)
+    second = pipe.run(rec.stream, precomputed_flow=flow)
+    alone = [r.labels for r in _run(rec, flow)]
+    np.testing.assert_array_equal(next(second).labels, alone[0])
+    with pytest.raises(ConfigError, match="this run of the pipeline was superseded"):
+        next(first)
+    for r, expected in zip(second, alone[1:]):  # the later run is whole and unaffected
+        np.testing.assert_array_equal(r.labels, expected)
+
+
+def test_propagating_labels_refuses_points_of_two_lengths(sim):
+    # The compiled nearest-node search has no bounds checks: mismatched x and y crashed the
+    # interpreter (2 M points against 10) or returned garbage.
+    from evseg.errors import EventDataError
+    from evseg.segmentation import propagate_labels
+
+    rec, d = sim
+    res = _run(rec, load_flow_file(d / "flow.npz", n_events=len(rec.stream)))[0].segmentation
+    with pytest.raises(EventDataError, match=r"the points' x and y must be 1-D of one length, got shapes \(3,\) and \(1,\)"):
+        propagate_labels(res, np.array([100.0, 100.0, 100.0]), np.array([100.0]))
+    with pytest.raises(EventDataError, match="must be finite positions"):
+        propagate_labels(res, np.array([np.nan]), np.array([1.0]))

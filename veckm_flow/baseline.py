@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from evseg.events import validate_events
+from evseg.events import checked_sensor_size, validate_events
 from evseg.veckm_flow.result import NormalFlow
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -32,7 +32,10 @@ def time_surface(events: np.ndarray, sensor_size: tuple[int, int]) -> np.ndarray
     """Latest timestamp (us) per pixel of a slice: int64 ``(H, W)``, -1 where no event."""
     from evseg.veckm_flow import _kernels
 
-    w, h = int(sensor_size[0]), int(sensor_size[1])
+    # The compiled kernel writes per pixel without bounds checks: an event off the sensor
+    # (or a swapped width and height) would corrupt memory rather than fail.
+    w, h = checked_sensor_size(sensor_size)
+    validate_events(events, (w, h), source="time_surface events", check_sorted=False)
     pix = events["y"].astype(np.int64) * w + events["x"].astype(np.int64)
     last = _kernels.latest_per_cell(pix, w * h)
     ts = np.full(w * h, -1, np.int64)
@@ -75,8 +78,14 @@ def plane_fit_normal_flow(
         ``(nx, ny, uncertainty)`` float32 ``(T,)``: px/s, angular standard error (rad); NaN /
         inf where rejected.
     """
-    w, h = int(sensor_size[0]), int(sensor_size[1])
-    targets = np.asarray(targets, dtype=np.int64)
+    from evseg.errors import ConfigError
+    from evseg.veckm_flow.encoding import _validate_targets
+
+    w, h = checked_sensor_size(sensor_size)
+    validate_events(events, (w, h), source="plane-fit normal flow events")
+    targets = _validate_targets(targets, len(events))
+    if isinstance(radius_px, (bool, np.bool_)) or int(radius_px) != radius_px or radius_px < 1:
+        raise ConfigError(f"plane_fit_normal_flow: radius_px must be an integer >= 1, got {radius_px!r}")
     r = int(radius_px)
     ts = np.pad(time_surface(events, sensor_size), r, constant_values=-1)
     tx = events["x"][targets].astype(np.int64)

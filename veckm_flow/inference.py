@@ -254,24 +254,31 @@ class OnnxNormalFlow:
 
     def _fast_edges(self, events, sensor_size, targets, calibration, looks, matrices, timing):
         """Each look's ``(nx, ny, uncertainty)`` with the time-stretched second look mixed in
-        where its gate opens (:mod:`evseg.veckm_flow.fast_edges`). Looks whose stretched
-        slices start at the same event (all of them unless gated targets lie before the last
-        ``1 / stretch`` of the slice) get it computed together, at the targets any of them
-        gates, so each look's result is the one it gets alone. Adds its seconds to ``timing``."""
+        where its gate opens (:mod:`evseg.veckm_flow.fast_edges`). The stretched slice is the
+        last ``1 / stretch`` of the slice for the gated targets in it, and the whole slice for
+        those before it (a target must lie in its slice): a rule of each target's own
+        position, so that a target's flow never depends on the other targets asked for. The
+        looks' targets of one start are computed together, so each look's result is the one
+        it gets alone. Adds its seconds to ``timing``."""
         fe = self.fast_edges
         t0 = time.perf_counter()
         speeds = [np.hypot(lk[0], lk[1]) / self.cfg.flow_unit_px_s for lk in looks]
         gated = [np.flatnonzero(v > fe.speed_from) for v in speeds]
         base = stretched_start(events["t"], fe.stretch)
-        starts = [min(base, int(targets[g].min())) if len(g) else -1 for g in gated]
+        jobs: dict[int, dict[int, np.ndarray]] = {}  # slice start -> look -> its gated targets there
+        for i, g in enumerate(gated):
+            early = targets[g] < base
+            for start, sel in ((0, g[early]), (base, g[~early])):
+                if len(sel):
+                    jobs.setdefault(start, {})[i] = sel
         cfg = replace(self.cfg, t_scale_us=self.cfg.t_scale_us / fe.stretch)
-        for start in sorted(set(starts) - {-1}):
-            group = [i for i, s in enumerate(starts) if s == start]
-            union = np.unique(np.concatenate([gated[i] for i in group]))
+        for start in sorted(jobs):
+            group = sorted(jobs[start])
+            union = np.unique(np.concatenate([jobs[start][i] for i in group]))
             seconds = self._encode_and_predict(events[start:], sensor_size, targets[union] - start,
                                                calibration, cfg, tuple(matrices[i] for i in group), timing)
             for i, second in zip(group, seconds):
-                g = gated[i]
+                g = jobs[start][i]
                 at = np.searchsorted(union, g)
                 mixed = combine(tuple(a[g] for a in looks[i]), tuple(a[at] for a in second),
                                 gate_weights(speeds[i][g], fe.speed_from, fe.speed_full))

@@ -29,6 +29,19 @@ def select_targets(
         max_targets: keep at most this many, a uniform random subset drawn with ``seed``
             (deterministic).
     """
+    from evseg.events import checked_sensor_size, first_off_sensor, validate_events
+
+    sensor_size = checked_sensor_size(sensor_size)
+    validate_events(events, None, source="select_targets events", check_sorted=False)
+    if max_targets is not None and (isinstance(max_targets, (bool, np.bool_)) or int(max_targets) != max_targets
+                                    or max_targets < 0):
+        raise EventDataError(f"max_targets must be a non-negative integer or None, got {max_targets!r}")
+    # Each coordinate on its own: with a swapped width and height the combined cell index can
+    # stay in range while the cells are wrong.
+    off = first_off_sensor(events, sensor_size)
+    if off is not None:
+        raise EventDataError(f"select_targets: {off} is outside the {sensor_size[0]}x{sensor_size[1]} sensor "
+                             "(sensor_size is (width, height))")
     n = len(events)
     if cell_px is None:
         idx = np.arange(n, dtype=np.int64)
@@ -41,8 +54,6 @@ def select_targets(
         ncx = (int(sensor_size[0]) + c - 1) // c
         ncy = (int(sensor_size[1]) + c - 1) // c
         cell = (events["y"].astype(np.int64) // c) * ncx + events["x"].astype(np.int64) // c
-        if n and int(cell.max()) >= ncx * ncy:
-            raise EventDataError(f"events lie outside the {sensor_size[0]}x{sensor_size[1]} sensor")
         last = _kernels.latest_per_cell(cell, ncx * ncy)
         idx = np.sort(last[last >= 0])
     if max_targets is not None and len(idx) > max_targets:

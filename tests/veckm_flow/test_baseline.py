@@ -97,3 +97,17 @@ def test_settings_that_would_give_no_flow_or_crash_are_refused(kwargs, message):
 
     with pytest.raises(ConfigError, match=re.escape(message)):
         PlaneFitNormalFlow(**kwargs)
+
+
+def test_time_surface_and_plane_fit_refuse_events_off_the_sensor():
+    # Their compiled kernel writes per pixel without bounds checks: events off the sensor
+    # (or a swapped width and height) corrupted the heap and killed the interpreter.
+    from evseg.errors import EventDataError
+
+    ev = _edge_slice(0.0, 500.0)  # on a 64x48 sensor
+    with pytest.raises(EventDataError, match=r"time_surface events: field 'x' = \d+ at event \d+ is outside the sensor \(10x10"):
+        time_surface(ev, (10, 10))
+    with pytest.raises(EventDataError, match="outside the sensor"):
+        plane_fit_normal_flow(ev, np.arange(10), (10, 10))
+    with pytest.raises(EventDataError, match=r"targets: position 99999 is outside"):
+        plane_fit_normal_flow(ev, np.array([99999]), (64, 48))

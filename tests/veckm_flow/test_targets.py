@@ -31,3 +31,15 @@ def test_max_targets_is_deterministic_and_sorted(make_slice):
 def test_bad_cell_size_raises():
     with pytest.raises(EventDataError, match="cell_px"):
         select_targets(_ev([0], [0]), (4, 4), cell_px=0)
+
+
+def test_a_swapped_sensor_size_is_refused_not_used():
+    # (height, width) keeps the combined cell index in range for most events, so the cells
+    # (and the targets) came out wrong without a word.
+    ev = np.zeros(2, EVENT_DTYPE)
+    ev["x"], ev["y"], ev["t"] = [300, 5], [5, 5], [0, 1]
+    assert len(select_targets(ev, (346, 260))) == 2
+    with pytest.raises(EventDataError, match=r"select_targets: event 0 at \(300, 5\) is outside the 260x346 sensor"):
+        select_targets(ev, (260, 346))
+    with pytest.raises(EventDataError, match="max_targets must be a non-negative integer"):
+        select_targets(ev, (346, 260), max_targets=-1)
