@@ -264,7 +264,7 @@ class OnnxNormalFlow:
         t0 = time.perf_counter()
         speeds = [np.hypot(lk[0], lk[1]) / self.cfg.flow_unit_px_s for lk in looks]
         gated = [np.flatnonzero(v > fe.speed_from) for v in speeds]
-        base = stretched_start(events["t"], fe.stretch)
+        base = stretched_start(events["t"], fe.stretch, fe.min_keep_us)
         jobs: dict[int, dict[int, np.ndarray]] = {}  # slice start -> look -> its gated targets there
         for i, g in enumerate(gated):
             early = targets[g] < base

@@ -25,6 +25,10 @@ def test_stretched_start_keeps_the_last_part_of_the_span():
     assert stretched_start(t, 2.0) == 3  # t >= 15
     assert stretched_start(t, 3.0) == 4  # t >= 20
     assert stretched_start(np.array([], dtype=np.int64), 2.0) == 0
+    # A short slice (a recording's first window, no context) is kept whole, not halved.
+    t10 = np.arange(0, 10_001, 1000)
+    assert stretched_start(t10, 2.0, min_keep_us=10_000) == 0
+    assert stretched_start(np.arange(0, 30_001, 1000), 2.0, min_keep_us=10_000) == 15  # t >= 15 ms
 
 
 @pytest.mark.parametrize("kwargs", [{"stretch": 1.0}, {"stretch": float("nan")}, {"speed_from": 1.0, "speed_full": 0.5},
