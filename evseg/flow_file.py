@@ -73,7 +73,7 @@ def check_flow(data: Mapping, n_events: int | None = None, source: str = "precom
             raise error(f"{source}: key '{key}' has {len(a)} rows, 'index' has {n}")
     index = arrays["index"]
     if not np.issubdtype(index.dtype, np.integer):
-        whole = np.isfinite(index) & (index == np.round(index))
+        whole = np.isfinite(index) & (index == np.round(index)) & (np.abs(index) < 2.0**62)
         if not whole.all():
             raise error(f"{source}: key 'index' must hold event positions (integers), got {index[~whole][0]}")
     index = index.astype(np.int64, copy=False)
@@ -97,6 +97,11 @@ def check_flow(data: Mapping, n_events: int | None = None, source: str = "precom
     if unc is not None and len(unc) and bool(np.any(unc < 0)):
         raise error(f"{source}: key 'uncertainty' has value {float(unc[np.flatnonzero(unc < 0)[0]])} < 0 "
                     "(larger = less certain, 0 = certain)")
+    if unc is not None and len(unc) and bool(np.isnan(unc).any()):
+        # NaN compares false everywhere: every such flow would be dropped without a word.
+        row = int(np.flatnonzero(np.isnan(unc))[0])
+        raise error(f"{source}: key 'uncertainty' is NaN for event {int(out['index'][row])} (use inf for a flow "
+                    "to ignore, as the plane fit does where it rejects a fit)")
     return out
 
 

@@ -25,6 +25,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from evseg.errors import EventDataError
+
 Box = tuple[int, int, int, int]
 """(x0, y0, x1, y1), inclusive pixel bounds, x = column, y = row."""
 
@@ -65,12 +67,31 @@ def convex_hull_mask(x: np.ndarray, y: np.ndarray, shape: tuple[int, int]) -> np
     return m.astype(bool)
 
 
+def _mask_pair(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two masks of one shape as bool (a numeric mask counts its non-zero pixels: 1 and 2 are
+    both "in", where a bitwise and of them would be empty)."""
+    a, b = np.asarray(a), np.asarray(b)
+    if a.shape != b.shape:
+        raise EventDataError(f"masks of different shapes {a.shape} and {b.shape}: (height, width) both")
+    if a.dtype != bool:
+        a = a != 0
+    if b.dtype != bool:
+        b = b != 0
+    return a, b
+
+
 def mask_iou(a: np.ndarray, b: np.ndarray) -> float:
-    """|a ∩ b| / |a ∪ b| of two boolean masks; 1.0 when both are empty."""
+    """|a ∩ b| / |a ∪ b| of two masks (bool, or numbers: non-zero = in); 1.0 when both are
+    empty.
+
+    >>> mask_iou(np.array([[1, 1, 0]]), np.array([[2, 0, 0]]))
+    0.5
+    """
+    a, b = _mask_pair(a, b)
     union = np.count_nonzero(a | b)
     if union == 0:
         return 1.0
-    return np.count_nonzero(a & b) / union
+    return float(np.count_nonzero(a & b) / union)
 
 
 def detection_success(detected: np.ndarray, truth: np.ndarray) -> bool:
@@ -84,6 +105,7 @@ def detection_success(detected: np.ndarray, truth: np.ndarray) -> bool:
     >>> detection_success(box_to_mask((5, 5, 14, 14), (20, 20)), g)
     False
     """
+    detected, truth = _mask_pair(detected, truth)
     inter = np.count_nonzero(detected & truth)
     outside = np.count_nonzero(detected & ~truth)
     return bool(mask_iou(detected, truth) > 0.5 and inter > outside)
@@ -279,13 +301,23 @@ def event_iou(pred_labels: np.ndarray, truth_labels: np.ndarray) -> float:
 # --------------------------------------------------------------------------- normal flow
 
 
+def _flow_pair(pred, truth) -> tuple[np.ndarray, np.ndarray]:
+    """Two flow arrays of one shape (..., 2), float64: (2, N) or a (2,) broadcast against
+    (N, 2) would be read as other flows without a word."""
+    pred, truth = np.asarray(pred, np.float64), np.asarray(truth, np.float64)
+    if pred.shape != truth.shape or pred.ndim == 0 or pred.shape[-1] != 2:
+        raise EventDataError(f"flows must be two arrays of one shape (N, 2) (x, y per row), got {pred.shape} "
+                             f"and {truth.shape}")
+    return pred, truth
+
+
 def angular_error_deg(pred: np.ndarray, truth: np.ndarray) -> np.ndarray:
     """Angle between predicted and true normal flow vectors, degrees in [0, 180].
 
     >>> angular_error_deg(np.array([[1.0, 0]]), np.array([[0.0, 2]])).round(6).tolist()
     [90.0]
     """
-    pred, truth = np.asarray(pred, np.float64), np.asarray(truth, np.float64)
+    pred, truth = _flow_pair(pred, truth)
     dot = np.sum(pred * truth, axis=-1)
     cross = pred[..., 0] * truth[..., 1] - pred[..., 1] * truth[..., 0]
     return np.degrees(np.abs(np.arctan2(cross, dot)))
@@ -293,6 +325,7 @@ def angular_error_deg(pred: np.ndarray, truth: np.ndarray) -> np.ndarray:
 
 def relative_magnitude_error(pred: np.ndarray, truth: np.ndarray) -> np.ndarray:
     """| |p| - |g| | / |g| per flow (dimensionless)."""
+    pred, truth = _flow_pair(pred, truth)
     gp = np.linalg.norm(pred, axis=-1)
     gt = np.linalg.norm(truth, axis=-1)
     return np.abs(gp - gt) / np.maximum(gt, 1e-12)
@@ -300,6 +333,7 @@ def relative_magnitude_error(pred: np.ndarray, truth: np.ndarray) -> np.ndarray:
 
 def sign_correct_rate(pred: np.ndarray, flow: np.ndarray) -> float:
     """Share of predictions pointing to the same half-plane as the (optical or normal) flow."""
+    pred, flow = _flow_pair(pred, flow)
     return float(np.mean(np.sum(np.asarray(pred) * np.asarray(flow), axis=-1) > 0))
 
 
@@ -326,7 +360,7 @@ class FlowErrors:
 
 def flow_errors(pred: np.ndarray, truth: np.ndarray) -> FlowErrors:
     """Summarize errors of predicted vs true normal flow, (N, 2) each, px/s; NaN rows skipped."""
-    pred, truth = np.asarray(pred, np.float64), np.asarray(truth, np.float64)
+    pred, truth = _flow_pair(pred, truth)
     ok = np.all(np.isfinite(pred), axis=-1) & np.all(np.isfinite(truth), axis=-1)
     pred, truth = pred[ok], truth[ok]
     if len(pred) == 0:

@@ -97,6 +97,7 @@ class VideoSink:
         self._writer = None
         self._tmp: Path | None = None
         self._n = 0
+        self._size: tuple[int, int] | None = None  # (height, width) of the first frame
         if self.video is not None and self.video.suffix.lower() != ".mp4":
             # OpenCV picks the container from the suffix and, for one it cannot write with
             # mp4v, may write nothing without saying so.
@@ -107,6 +108,16 @@ class VideoSink:
     def add(self, frame: np.ndarray) -> None:
         import cv2
 
+        frame = np.asarray(frame)
+        if frame.dtype != np.uint8 or frame.ndim != 3 or frame.shape[2] != 3:
+            # OpenCV's writer drops such frames with a warning on stderr only.
+            raise EvsegError(f"{self.video or self.frames_dir}: frame {self._n} must be uint8 (height, width, 3) BGR, "
+                             f"got {frame.dtype} {frame.shape}")
+        if self._size is None:
+            self._size = frame.shape[:2]
+        elif frame.shape[:2] != self._size:
+            raise EvsegError(f"{self.video or self.frames_dir}: frame {self._n} is {frame.shape[1]}x{frame.shape[0]}, "
+                             f"the first was {self._size[1]}x{self._size[0]}; a video has one frame size")
         if self.video is not None:
             if self._writer is None:
                 self.video.parent.mkdir(parents=True, exist_ok=True)

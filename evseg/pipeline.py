@@ -191,20 +191,12 @@ class PipelineConfig:
                 raise ConfigError(f"pipeline.{name} must be an integer >= 1 or null, got {value!r}")
         if not isinstance(self.overlap, (bool, np.bool_)):
             raise ConfigError(f"pipeline.overlap must be true or false, got {self.overlap!r}")
-        seg = self.segmentation
-        if seg is not None:
-            from evseg.segmentation import SegmentationConfig, load_segmentation_config
-            from evseg.segmentation.config import config_from_dict
+        if self.segmentation is not None:
+            from evseg.segmentation.config import as_segmentation_config
 
             # A preset name or the mapping a result file's stored YAML holds: the same config.
-            if isinstance(seg, str):
-                seg = load_segmentation_config(seg)
-            elif isinstance(seg, dict):
-                seg = config_from_dict(seg, source="pipeline.segmentation")
-            elif not isinstance(seg, SegmentationConfig):
-                raise ConfigError("pipeline.segmentation must be a SegmentationConfig, a preset name or a mapping "
-                                  f"of its fields, got {type(seg).__name__}")
-            object.__setattr__(self, "segmentation", seg)
+            object.__setattr__(self, "segmentation",
+                               as_segmentation_config(self.segmentation, source="pipeline.segmentation"))
         if self.worker not in WORKERS:
             raise ConfigError(
                 f"pipeline.worker must be one of {', '.join(WORKERS)}, got {self.worker!r}")

@@ -138,6 +138,11 @@ class ResultWriter:
             if self.with_masks:
                 if masks is None or oid not in masks:
                     raise ValueError(f"window {w}: no mask for object {oid}")
+                shape = np.shape(masks[oid])
+                if shape != (self.sensor_size[1], self.sensor_size[0]):
+                    # Another size shifts every later mask in the file (or cuts it short).
+                    raise ValueError(f"window {w}: the mask of object {oid} has shape {shape}, expected "
+                                     f"(height, width) = ({self.sensor_size[1]}, {self.sensor_size[0]})")
                 self._mask_file.write(np.packbits(np.asarray(masks[oid], dtype=bool).ravel()).tobytes())
                 self._n_masks += 1
             self._boxes.extend((w, int(oid), *(int(v) for v in boxes[oid])))

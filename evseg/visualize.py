@@ -43,6 +43,15 @@ def flow_to_rgb(nx: np.ndarray, ny: np.ndarray, max_px_s: float) -> np.ndarray:
     full saturation. NaN vectors become black (as a still pixel would)."""
     nx = np.asarray(nx, np.float64)
     ny = np.asarray(ny, np.float64)
+    if nx.shape != ny.shape:
+        from evseg.errors import EventDataError
+
+        raise EventDataError(f"flow_to_rgb: nx and ny must have one shape, got {nx.shape} and {ny.shape}")
+    if not (isinstance(max_px_s, (int, float, np.integer, np.floating)) and np.isfinite(max_px_s) and max_px_s > 0):
+        from evseg.errors import ConfigError
+
+        raise ConfigError(f"flow_to_rgb: max_px_s (the speed shown at full brightness) must be a positive number "
+                          f"(px/s), got {max_px_s!r}")
     shape = nx.shape
     ang = np.degrees(np.arctan2(ny, nx)) % 360.0
     mag = np.hypot(nx, ny)
@@ -67,12 +76,33 @@ def color_wheel_legend(size: int = 96, max_px_s: float | None = None) -> np.ndar
     return img
 
 
+def _pixel_index(x, y, sensor_size, n: int | None, where: str) -> tuple[np.ndarray, int, int]:
+    """Flat pixel index ``y * width + x`` of per-event coordinates, checked: a coordinate off
+    the sensor (or a swapped width and height) would land on another row, not fail."""
+    from evseg.errors import EventDataError
+    from evseg.events import checked_sensor_size
+
+    w, h = checked_sensor_size(sensor_size)
+    x, y = np.asarray(x), np.asarray(y)
+    if x.ndim != 1 or x.shape != y.shape or (n is not None and len(x) != n):
+        raise EventDataError(f"{where}: x, y (and the per-event values) must be 1-D of one length, got "
+                             f"{x.shape}, {y.shape}" + ("" if n is None else f" and {n} values"))
+    for name, c, limit in (("x", x, w), ("y", y, h)):
+        if len(c) and (not np.issubdtype(c.dtype, np.integer) and not np.all(c == np.round(c))):
+            raise EventDataError(f"{where}: {name} must be whole pixels, got {c[c != np.round(c)][0]}")
+        bad = np.flatnonzero((c < 0) | (c >= limit))
+        if len(bad):
+            raise EventDataError(f"{where}: {name} = {c[bad[0]]} at event {int(bad[0])} is outside the {w}x{h} "
+                                 "sensor (sensor_size is (width, height))")
+    return y.astype(np.int64) * w + x.astype(np.int64), w, h
+
+
 def events_to_image(x: np.ndarray, y: np.ndarray, p: np.ndarray, sensor_size: tuple[int, int]) -> np.ndarray:
     """Event image: white background, pixel coloured by the sign of its summed polarity (red =
     ON, blue = OFF). ``sensor_size = (width, height)``; returns uint8 (height, width, 3) RGB."""
-    w, h = sensor_size
+    pix, w, h = _pixel_index(x, y, sensor_size, len(np.asarray(p)), "events_to_image")
     acc = np.zeros(h * w, np.int32)
-    np.add.at(acc, np.asarray(y, np.int64) * w + np.asarray(x, np.int64), np.asarray(p, np.int32))
+    np.add.at(acc, pix, np.asarray(p, np.int32))
     img = np.full((h * w, 3), 255, np.uint8)
     img[acc > 0] = ON_RGB
     img[acc < 0] = OFF_RGB
@@ -83,12 +113,18 @@ def labels_to_image(x: np.ndarray, y: np.ndarray, labels: np.ndarray, sensor_siz
     """Per-event labels drawn at their pixels (the last event of a pixel wins): white where no
     event, light grey for 0 (background), grey for -1 (noise), a palette colour for k >= 1.
     Returns uint8 (height, width, 3) RGB."""
-    w, h = sensor_size
-    labels = np.asarray(labels, np.int64)
+    labels = np.asarray(labels)
+    pix, w, h = _pixel_index(x, y, sensor_size, len(labels), "labels_to_image")
+    if len(labels) and (not np.issubdtype(labels.dtype, np.integer) or labels.min() < -1):
+        from evseg.errors import EventDataError
+
+        raise EventDataError(f"labels_to_image: labels must be integers >= -1 (-1 unassigned, 0 background, "
+                             f"k >= 1 object), got dtype {labels.dtype}, minimum {labels.min()}")
+    labels = labels.astype(np.int64)
     n_obj = int(labels.max(initial=0))
     colours = np.vstack([np.array([NOISE_RGB, BACKGROUND_RGB], np.uint8), label_palette(max(n_obj, 1))])
     img = np.full((h * w, 3), 255, np.uint8)
-    img[np.asarray(y, np.int64) * w + np.asarray(x, np.int64)] = colours[labels + 1]
+    img[pix] = colours[labels + 1]
     return img.reshape(h, w, 3)
 
 
@@ -96,11 +132,15 @@ def flow_events_to_image(x, y, flow: np.ndarray, sensor_size: tuple[int, int], m
     """Per-event flow vectors (N, 2) px/s drawn at their pixels with :func:`flow_to_rgb`
     (last event of a pixel wins; NaN flows are skipped); white where no event.
     Returns uint8 (height, width, 3) RGB."""
-    w, h = sensor_size
     flow = np.asarray(flow)
+    pix, w, h = _pixel_index(x, y, sensor_size, len(flow), "flow_events_to_image")
+    if flow.ndim != 2 or flow.shape[1] != 2:
+        from evseg.errors import EventDataError
+
+        raise EventDataError(f"flow_events_to_image: flow must be (N, 2) px/s, got shape {flow.shape}")
     ok = np.isfinite(flow).all(1)
     img = np.full((h * w, 3), 255, np.uint8)
-    idx = np.asarray(y, np.int64)[ok] * w + np.asarray(x, np.int64)[ok]
+    idx = pix[ok]
     img[idx] = flow_to_rgb(flow[ok, 0], flow[ok, 1], max_px_s)
     return img.reshape(h, w, 3)
 

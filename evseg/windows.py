@@ -12,7 +12,8 @@ from typing import Iterable, Iterator
 
 import numpy as np
 
-from evseg.events import EVENT_DTYPE
+from evseg.errors import EventDataError
+from evseg.events import EVENT_DTYPE, validate_events
 
 
 @dataclass(frozen=True)
@@ -66,8 +67,14 @@ def time_window_slices(
     >>> [(s.start, s.stop) for s in time_window_slices(t, 10)]
     [(0, 3), (3, 4), (4, 5)]
     """
+    t_us = np.asarray(t_us)
     if len(t_us) == 0:
         return []
+    if np.any(t_us[1:] < t_us[:-1]):
+        # searchsorted on unsorted times returns slices that miss events without a word.
+        i = int(np.flatnonzero(t_us[1:] < t_us[:-1])[0]) + 1
+        raise EventDataError(f"time_window_slices: times not sorted: t = {int(t_us[i])} us at {i} after "
+                             f"{int(t_us[i - 1])} us")
     starts = time_window_bounds(int(t_us[0]), int(t_us[-1]), window_us, stride_us)
     i0 = np.searchsorted(t_us, starts, side="left")
     i1 = np.searchsorted(t_us, starts + window_us, side="left")
@@ -106,16 +113,29 @@ def stream_time_windows(
     """
     window_us = _check_positive("window_us", window_us)
     stride_us = _check_positive("stride_us", stride_us if stride_us is not None else window_us)
+    if t_start_us is not None and (isinstance(t_start_us, bool) or int(t_start_us) != t_start_us):
+        raise ValueError(f"t_start_us must be a whole number of microseconds, got {t_start_us!r}")
     buf = np.empty(0, dtype=EVENT_DTYPE)
     buf_first = 0  # index in the recording of buf[0]
     seen = 0  # events received so far
-    t0 = t_start_us
+    t0 = None if t_start_us is None else int(t_start_us)
     index = 0
-    for chunk in chunks:
+    t_prev = None
+    for k, chunk in enumerate(chunks):
         if len(chunk) == 0:
             continue
+        # Windows are cut by searchsorted: an unsorted chunk, or one that starts before the
+        # last ended, would lose events silently.
+        validate_events(chunk, None, source=f"stream_time_windows: chunk {k}")
+        if t_prev is not None and int(chunk["t"][0]) < t_prev:
+            raise EventDataError(f"stream_time_windows: chunk {k} starts at t = {int(chunk['t'][0])} us, before "
+                                 f"the chunk before it ended (t = {t_prev} us)")
+        t_prev = int(chunk["t"][-1])
         if t0 is None:
             t0 = int(chunk["t"][0])
+        elif index == 0 and seen == 0 and int(chunk["t"][0]) < t0:
+            raise EventDataError(f"stream_time_windows: the first event (t = {int(chunk['t'][0])} us) lies before "
+                                 f"t_start_us = {t0} us; its events would belong to no window")
         buf = np.concatenate([buf, chunk]) if len(buf) else chunk
         seen += len(chunk)
         t_last = int(buf["t"][-1])

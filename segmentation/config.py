@@ -24,6 +24,8 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from evseg.errors import ConfigError, yaml_problem
 from evseg.segmentation.preprocessing import CELL_RULES
 
@@ -298,6 +300,8 @@ class SegmentationConfig:
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
+            _check_type(self, f)
+        for f in dataclasses.fields(self):
             value = getattr(self, f.name)
             # NaN passes every comparison below, then poisons the energy; inf has no meaning
             # in any field but the two limits.
@@ -332,7 +336,11 @@ class SegmentationConfig:
         if self.max_nodes is not None and (isinstance(self.max_nodes, bool) or int(self.max_nodes) != self.max_nodes
                                            or self.max_nodes < 1):
             raise ConfigError(f"SegmentationConfig.max_nodes must be a positive integer or None, got {self.max_nodes!r}")
+        if self.node_window_us is not None and not self.node_window_us > 0:
+            raise ConfigError(f"SegmentationConfig.node_window_us must be > 0 (us) or None, got {self.node_window_us!r}")
         if self.origin_px is not None:
+            if not (isinstance(self.origin_px, (list, tuple, np.ndarray)) and len(self.origin_px) == 2):
+                raise ConfigError(f"SegmentationConfig.origin_px must be [column, row] in px, got {self.origin_px!r}")
             object.__setattr__(self, "origin_px", tuple(float(v) for v in self.origin_px))
             if not all(math.isfinite(v) for v in self.origin_px):
                 raise ConfigError(f"SegmentationConfig.origin_px must be finite [column, row] px, got {self.origin_px}")
@@ -341,6 +349,45 @@ class SegmentationConfig:
 def _check_choice(name: str, value: str, choices: tuple[str, ...]) -> None:
     if value not in choices:
         raise ConfigError(f"SegmentationConfig.{name} must be one of {choices}, got {value!r}")
+
+
+_OPTIONAL_FIELDS = ("node_window_us", "max_uncertainty", "origin_px", "max_nodes")
+
+
+def _check_type(cfg: "SegmentationConfig", f: dataclasses.Field) -> None:
+    """The field's value has the type of its default (numpy scalars become Python numbers): a
+    string "80", a float 2.5 for a count or "false" for a switch would fail later, or act
+    wrongly, far from where they were given."""
+    value, default = getattr(cfg, f.name), f.default
+    if value is None and f.name in _OPTIONAL_FIELDS:
+        return
+    if f.name == "origin_px" or default is dataclasses.MISSING:
+        return
+    bad = None
+    if isinstance(default, bool):
+        if isinstance(value, np.bool_):
+            value = bool(value)
+        bad = not isinstance(value, bool)
+    elif isinstance(default, int) or f.name == "max_nodes":
+        if isinstance(value, (bool, np.bool_)):
+            bad = True
+        elif isinstance(value, (int, np.integer)):
+            value = int(value)
+        elif isinstance(value, (float, np.floating)) and float(value).is_integer():
+            value = int(value)
+        else:
+            bad = True
+    elif isinstance(default, float) or (default is None and f.name in _OPTIONAL_FIELDS):
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+            bad = True
+        else:
+            value = float(value)
+    elif isinstance(default, str):
+        bad = not isinstance(value, str)
+    if bad:
+        kind = type(default).__name__ if default is not None else "number"
+        raise ConfigError(f"SegmentationConfig.{f.name} must be {'an' if kind == 'int' else 'a'} {kind}, got {value!r}")
+    object.__setattr__(cfg, f.name, value)
 
 
 def config_from_dict(d: dict, source: str = "config") -> SegmentationConfig:
@@ -380,6 +427,8 @@ def _coerce(key: str, value, default, source: str):
         kind = float
     else:
         kind = type(default)
+    if isinstance(value, np.generic):  # numpy scalars (a mapping built in Python) as Python numbers
+        value = value.item()
     if kind is not bool and isinstance(value, bool):
         raise ConfigError(f"{source}: field '{key}' must be {kind.__name__}, got {value!r}")
     if kind is bool and isinstance(value, bool):
@@ -472,3 +521,22 @@ def _from_result(path: Path) -> SegmentationConfig:
     except yaml.YAMLError as exc:
         raise ConfigError(f"{path}: key 'config': {yaml_problem(exc)}") from None
     return config_from_dict(_segmentation_part(data), source=f"{path}: key 'config'")
+
+
+def as_segmentation_config(config, source: str = "config") -> SegmentationConfig:
+    """A :class:`SegmentationConfig` from one, a preset name or file path, a mapping of its
+    fields, or None (the defaults); anything else is a :class:`ConfigError` naming ``source``.
+
+    >>> as_segmentation_config({"lambda_m": 40.0}).lambda_m
+    40.0
+    """
+    if config is None:
+        return SegmentationConfig()
+    if isinstance(config, SegmentationConfig):
+        return config
+    if isinstance(config, (str, Path)):
+        return load_segmentation_config(config)
+    if isinstance(config, dict):
+        return config_from_dict(config, source=source)
+    raise ConfigError(f"{source} must be a SegmentationConfig, a preset name or a mapping of its fields, "
+                      f"got {type(config).__name__}")

@@ -183,7 +183,6 @@ def segment_normal_flow(
             infinite, a time that is not whole microseconds (seconds would all fall into one
             microsecond), a negative uncertainty; the message names the argument and the row.
     """
-    _check_window_arrays(x, y, t, nx, ny, uncertainty)
     prepared = prepare_window(x, y, t, nx, ny, uncertainty, config, sensor_size, event_xy)
     return segment_prepared(prepared, previous, tracked_objects)
 
@@ -220,6 +219,9 @@ def _check_window_arrays(x, y, t, nx, ny, uncertainty) -> None:
             i = int(np.flatnonzero(u < 0)[0])
             raise EventDataError(f"segment_normal_flow: 'uncertainty' = {u[i]} at row {i} is negative "
                                  "(larger = less certain, 0 = certain)")
+        if np.isnan(u).any():
+            i = int(np.flatnonzero(np.isnan(u))[0])
+            raise EventDataError(f"segment_normal_flow: 'uncertainty' is NaN at row {i} (inf marks a flow to ignore)")
 
 
 def segment_prepared(

@@ -246,8 +246,16 @@ def prepare_window(
     noise, confidences, fast-sampling votes). Same arguments; a streaming caller can prepare
     window t + 1 on another thread while window t is segmented (:func:`.solver.segment_prepared`).
     """
+    from evseg.segmentation.config import as_segmentation_config
+    from evseg.segmentation.solver import _check_window_arrays
+
+    _check_window_arrays(x, y, t, nx, ny, uncertainty)
+    if sensor_size is not None:
+        from evseg.events import checked_sensor_size
+
+        sensor_size = checked_sensor_size(sensor_size)
     a = _validate(x, y, t, nx, ny, uncertainty)
-    cfg = config
+    cfg = as_segmentation_config(config)
     timings = {}
     tic, cpu = time.perf_counter(), time.process_time()
     graph = build_node_graph(a["x"], a["y"], a["t"], a["nx"], a["ny"], a.get("uncertainty"),

@@ -134,3 +134,12 @@ def test_segment_cli_reports_a_bad_flow_file_in_one_line(sim, tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "flow.npz: no key 'ny' (expected index, nx, ny[, uncertainty])" in err[0], err
     assert not (tmp_path / "out.npz").exists()
+
+
+def test_a_nan_uncertainty_is_refused_not_dropped_silently():
+    data = {"index": np.array([0, 1]), "nx": np.array([1.0, 2.0]), "ny": np.array([0.0, 0.0]),
+            "uncertainty": np.array([0.1, np.nan])}
+    with pytest.raises(EvsegError, match=r"key 'uncertainty' is NaN for event 1 \(use inf for a flow to ignore"):
+        check_flow(data)
+    data["uncertainty"] = np.array([0.1, np.inf])  # inf: a flow to ignore, as the plane fit marks rejected fits
+    assert np.isinf(check_flow(data)["uncertainty"][1])

@@ -140,3 +140,27 @@ def test_warp_sharpness_rewards_true_flow():
     wrong = warp_sharpness(x, y, t, -true, SHAPE)
     assert zero == pytest.approx(1.0)
     assert good > 5 and wrong < 1
+
+
+def test_numeric_masks_count_their_nonzero_pixels_and_shapes_must_agree():
+    # 1 and 2 are both "in": a bitwise and of them is empty (IoU 0, a miss).
+    from evseg.errors import EventDataError
+    from evseg.metrics import detection_success, mask_iou
+
+    a, b = np.zeros((4, 4), np.int64), np.zeros((4, 4), np.uint8)
+    a[:2, :2], b[:2, :2] = 1, 2
+    assert mask_iou(a, b) == 1.0 and detection_success(a, b)
+    assert mask_iou(a.astype(float), b) == 1.0
+    with pytest.raises(EventDataError, match=r"masks of different shapes \(4, 4\) and \(4, 5\)"):
+        mask_iou(a, np.zeros((4, 5), bool))
+
+
+def test_flow_errors_refuse_flows_of_other_shapes():
+    from evseg.errors import EventDataError
+    from evseg.metrics import angular_error_deg, flow_errors
+
+    pred = np.array([[1.0, 0.0], [0.0, 1.0], [1.0, 1.0]])
+    with pytest.raises(EventDataError, match=r"one shape \(N, 2\).*\(2, 3\) and \(2, 3\)"):
+        flow_errors(pred.T, pred.T)  # (2, N): would be read as 2 flows of N components
+    with pytest.raises(EventDataError, match=r"\(3, 2\) and \(2,\)"):
+        angular_error_deg(pred, np.array([1.0, 0.0]))

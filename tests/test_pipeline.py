@@ -260,7 +260,8 @@ def test_no_fast_edges_is_the_first_look_in_flow_command_and_pipeline(sim, tmp_p
     out2 = tmp_path / "flow2.npz"
     assert main(["flow", str(d / "sim.npz"), "--out", str(out2), "--no-progress"]) == 0
     assert json.loads(str(np.load(out2)["config"]))["fast_edges"] == {"stretch": 2.0, "speed_from": 0.5,
-                                                                       "speed_full": 11.0 / 15.0}
+                                                                       "speed_full": 11.0 / 15.0,
+                                                                       "min_keep_us": 10_000.0}
 
 
 def test_mirrors_give_the_flow_command_s_flows_in_the_pipeline_and_segment(sim, tmp_path):

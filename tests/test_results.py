@@ -118,3 +118,11 @@ def test_labels_of_a_window_whose_successor_was_dropped_stand(tmp_path):
         for res in write_window_labels(w, [window(i) for i in range(5)], stride_us=10_000):
             w.add_window(res.t0_us, res.t0_us + 20_000, {})
     assert load_result(path).label.tolist() == [i for i in range(5) for _ in range(10)]
+
+
+def test_a_mask_of_another_shape_is_refused_not_stored_shifted(tmp_path):
+    w = ResultWriter(tmp_path / "r.npz", None, (8, 6), with_masks=True)
+    w.add_labels(np.zeros(3, np.int16))
+    with pytest.raises(ValueError, match=r"window 0: the mask of object 1 has shape \(8, 6\), expected \(height, width\) = \(6, 8\)"):
+        w.add_window(0, 10, {1: (0, 0, 1, 1)}, {1: np.zeros((8, 6), bool)})
+    w.abort()

@@ -59,3 +59,41 @@ def test_palette_matches_the_overlay_colour_of_each_object():
     pal = vis.label_palette(40)
     for k in range(1, 41):
         assert tuple(int(c) for c in pal[k - 1]) == object_color(k)[::-1]
+
+
+def test_events_off_the_sensor_are_refused_not_drawn_on_another_row():
+    # y * width + x put x = 12 of a 10x10 sensor at row 1, column 2.
+    import pytest
+
+    from evseg.errors import ConfigError, EventDataError
+
+    x, y = np.array([12, 1]), np.array([0, 1])
+    with pytest.raises(EventDataError, match=r"events_to_image: x = 12 at event 0 is outside the 10x10 sensor"):
+        vis.events_to_image(x, y, np.array([1, 1]), (10, 10))
+    with pytest.raises(EventDataError, match=r"labels_to_image: x = 12 at event 0"):
+        vis.labels_to_image(x, y, np.array([1, 0]), (10, 10))
+    with pytest.raises(EventDataError, match=r"flow_events_to_image: x = 12"):
+        vis.flow_events_to_image(x, y, np.ones((2, 2)), (10, 10), 5.0)
+    with pytest.raises(EventDataError, match=r"labels must be integers >= -1"):
+        vis.labels_to_image(np.array([1]), np.array([1]), np.array([-2]), (10, 10))
+    with pytest.raises(ConfigError, match=r"max_px_s .* got nan"):
+        vis.flow_to_rgb(np.ones(2), np.ones(2), float("nan"))
+
+
+def test_video_frames_of_another_size_or_kind_are_refused_not_dropped(tmp_path):
+    # OpenCV's writer skips such frames with only a warning on stderr.
+    import pytest
+
+    from evseg.errors import EvsegError
+    from evseg.overlay import VideoSink
+
+    with VideoSink(tmp_path / "v.mp4") as sink:
+        sink.add(np.zeros((48, 64, 3), np.uint8))
+        with pytest.raises(EvsegError, match=r"frame 1 is 32x48, the first was 64x48"):
+            sink.add(np.zeros((48, 32, 3), np.uint8))
+        with pytest.raises(EvsegError, match=r"frame 1 must be uint8 \(height, width, 3\) BGR, got uint8 \(48, 64\)"):
+            sink.add(np.zeros((48, 64), np.uint8))
+        sink.add(np.zeros((48, 64, 3), np.uint8))
+    import cv2
+
+    assert int(cv2.VideoCapture(str(tmp_path / "v.mp4")).get(cv2.CAP_PROP_FRAME_COUNT)) == 2

@@ -73,3 +73,19 @@ def test_event_history_of_zero_keeps_nothing():
         hist.add(w)
     with pytest.raises(ValueError, match="context duration"):
         EventHistory(-1)
+
+
+def test_unsorted_or_overlapping_chunks_and_a_late_start_are_refused_not_lost():
+    from evseg.errors import EventDataError
+
+    ev = make_events(list(range(20)), [0] * 20, np.arange(0, 100, 5), [1] * 20)
+    with pytest.raises(EventDataError, match=r"stream_time_windows: chunk 1 starts at t = 10 us, before the chunk"):
+        list(stream_time_windows([ev[5:], ev[2:4]], 10))
+    with pytest.raises(EventDataError, match=r"stream_time_windows: chunk 0: field 't' is not sorted"):
+        list(stream_time_windows([ev[::-1]], 10))
+    with pytest.raises(EventDataError, match=r"the first event \(t = 0 us\) lies before t_start_us = 20 us"):
+        list(stream_time_windows([ev], 10, t_start_us=20))
+    with pytest.raises(ValueError, match="t_start_us must be a whole number"):
+        list(stream_time_windows([ev], 10, t_start_us=0.5))
+    with pytest.raises(EventDataError, match="time_window_slices: times not sorted"):
+        time_window_slices(np.array([0, 5, 3]), 10)

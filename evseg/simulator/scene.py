@@ -27,6 +27,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from evseg.errors import ConfigError, yaml_problem
 
 Range = tuple[float, float]
@@ -360,6 +362,12 @@ def _problem(obj: Any) -> tuple[str, str] | None:
     def bad(key: str, msg: str) -> tuple[str, str]:
         return key, msg
 
+    for f in dataclasses.fields(obj):
+        value = getattr(obj, f.name)
+        numbers = value if isinstance(value, tuple) else (value,)
+        if any(isinstance(v, float) and not np.isfinite(v) for v in numbers):
+            return bad(f.name, f"must be finite, got {value!r}")  # NaN passes every range check below
+
     if isinstance(obj, TextureConfig):
         for fam in obj.family:
             if fam not in TEXTURE_FAMILIES:
@@ -385,8 +393,8 @@ def _problem(obj: Any) -> tuple[str, str] | None:
     if isinstance(obj, SensorConfig):
         if obj.width <= 0 or obj.height <= 0:
             return bad("width", f"and height must be positive, got {obj.width}x{obj.height}")
-        if obj.c_pos <= 0 or obj.c_neg <= 0:
-            return bad("c_pos", "and c_neg must be positive log-intensity thresholds")
+        if not (obj.c_pos > 0 and obj.c_neg > 0 and np.isfinite(obj.c_pos) and np.isfinite(obj.c_neg)):
+            return bad("c_pos", f"and c_neg must be positive log-intensity thresholds, got {obj.c_pos} and {obj.c_neg}")
         for key in ("c_sigma", "refractory_us", "noise_rate_hz", "hot_pixel_rate_hz"):
             if not getattr(obj, key) >= 0:
                 return bad(key, f"must be >= 0, got {getattr(obj, key)}")

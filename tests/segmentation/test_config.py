@@ -121,3 +121,30 @@ def test_numbers_must_be_finite(field, value):
     with pytest.raises(ConfigError, match=r"origin_px must be finite"):
         SegmentationConfig(origin_px=(float("nan"), 0.0))
     assert SegmentationConfig(max_uncertainty=float("inf")).max_uncertainty == float("inf")  # a limit: no limit
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(lambda_m="80"), "SegmentationConfig.lambda_m must be a float, got '80'"),
+    (dict(max_rounds=2.5), "SegmentationConfig.max_rounds must be an int, got 2.5"),
+    (dict(static_camera="false"), "SegmentationConfig.static_camera must be a bool, got 'false'"),
+    (dict(node_window_us=-5), "SegmentationConfig.node_window_us must be > 0 (us) or None"),
+    (dict(origin_px=(1, 2, 3)), "SegmentationConfig.origin_px must be [column, row] in px"),
+])
+def test_values_of_the_wrong_type_are_refused_when_made(kwargs, message):
+    # They failed later inside range() or a comparison, or ("false") switched the option on.
+    import re
+
+    with pytest.raises(ConfigError, match=re.escape(message)):
+        SegmentationConfig(**kwargs)
+
+
+def test_numpy_numbers_are_numbers():
+    import numpy as np
+
+    from evseg.segmentation.config import config_from_dict
+
+    cfg = SegmentationConfig(lambda_m=np.float32(80), max_rounds=np.int64(3))
+    assert cfg.lambda_m == 80.0 and type(cfg.lambda_m) is float and cfg.max_rounds == 3
+    assert config_from_dict({"lambda_m": np.float32(40)}).lambda_m == 40.0
+    with pytest.raises(ConfigError, match="must be a finite number"):
+        SegmentationConfig(lambda_m=np.float32("nan"))

@@ -627,3 +627,23 @@ def test_segment_normal_flow_names_a_bad_argument(change, message):
         args["ny"] = np.zeros(4)
     with pytest.raises(EventDataError, match=rf"segment_normal_flow: {message}"):
         segment_normal_flow(**args)
+
+
+def test_prepare_window_checks_its_arrays_and_takes_a_preset_name():
+    # prepare_window is public: it checks what segment_normal_flow checks, and its config may be
+    # given as PipelineConfig takes it.
+    import numpy as np
+    import pytest
+
+    from evseg.errors import ConfigError, EventDataError
+    from evseg.segmentation import prepare_window
+
+    x, y = np.array([1.0, 2.0, 3.0]), np.array([1.0, 1.0, 1.0])
+    t, nx, ny = np.array([0, 1, 2]), np.ones(3), np.zeros(3)
+    with pytest.raises(EventDataError, match="'t' = 0.5 at row 0 is not whole microseconds"):
+        prepare_window(x, y, np.array([0.5, 1.0, 1.5]), nx, ny)
+    with pytest.raises(EventDataError, match="'uncertainty' is NaN at row 1"):
+        prepare_window(x, y, t, nx, ny, uncertainty=np.array([0.1, np.nan, 0.1]))
+    with pytest.raises(ConfigError, match="must be a SegmentationConfig, a preset name or a mapping"):
+        prepare_window(x, y, t, nx, ny, config=3)
+    assert len(prepare_window(x, y, t, nx, ny, config="eed_like").graph) >= 0

@@ -109,3 +109,8 @@ def test_refractory_and_speed_ranges_are_checked_when_made():
 def test_simulate_refuses_a_seed_it_would_change(seed):
     with pytest.raises(ConfigError, match="seed must be"):
         simulate(load_scene_preset("evimo_like"), seed=seed, duration_us=1000)
+
+
+def test_nan_in_any_number_is_refused():
+    with pytest.raises(ConfigError, match="'sensor.c_pos' must be finite, got nan"):
+        scene_from_dict({"sensor": {"c_pos": float("nan")}})
