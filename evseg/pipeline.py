@@ -31,13 +31,14 @@ from __future__ import annotations
 import itertools
 import time
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Callable, Iterable, Iterator, Protocol
 
 import numpy as np
 
 from evseg.calibration import Calibration
 from evseg.errors import CalibrationError, ConfigError, EventDataError, EvsegError, FormatError
-from evseg.events import EVENT_DTYPE, EventStream, checked_sensor_size, first_off_sensor
+from evseg.events import EVENT_DTYPE, EventStream, checked_sensor_size, first_off_sensor, validate_events
 from evseg.flow_file import WindowFlow, check_flow, load_flow_file, slice_flow  # noqa: F401 (load_flow_file: public here too)
 from evseg.tracking import ObjectTracker
 from evseg.undistortion import UndistortionTable, undistort_normal_flow
@@ -289,6 +290,18 @@ class MotionSegmentationPipeline:
     ):
         from evseg.segmentation import SegmentationConfig
 
+        if config is None:
+            config = PipelineConfig()
+        if not isinstance(config, PipelineConfig):
+            raise ConfigError(f"MotionSegmentationPipeline: config must be a PipelineConfig, got {type(config).__name__}"
+                              " (segmentation settings go in PipelineConfig(segmentation=...))")
+        if isinstance(calibration, (str, Path)):
+            from evseg.calibration import load_calibration
+
+            calibration = load_calibration(calibration)
+        elif calibration is not None and not isinstance(calibration, Calibration):
+            raise ConfigError(f"MotionSegmentationPipeline: calibration must be a Calibration or a calibration file, "
+                              f"got {type(calibration).__name__}")
         if sensor_size is None:
             raise ConfigError("the pipeline needs the sensor size (width, height)")
         self.config = config if config.segmentation is not None else replace(config, segmentation=SegmentationConfig())
@@ -472,6 +485,11 @@ class MotionSegmentationPipeline:
         them; an :class:`~evseg.windows.EventHistory` of that span keeps them), neighbours for
         the normal flow only: its last ``flow_context_us`` for every look, the rest (with
         ``slow_edges``) for the slow-edge look."""
+        if not isinstance(window, Window):
+            raise ConfigError(f"process() takes a Window (evseg.windows.Window, as run() cuts them), got "
+                              f"{type(window).__name__}; to segment events, use run()")
+        if context is not None:
+            validate_events(context, self.sensor_size, source="process(): context")
         timings: dict[str, float] = {}
         if flow is None:
             flow, timings = self._estimate_flow(window.events, context, window.t0_us,
@@ -537,10 +555,7 @@ class MotionSegmentationPipeline:
         from evseg.segmentation.outputs import nearest_node_index
 
         ev = window.events
-        idx = np.asarray(flow.index, dtype=np.int64)
-        nx = np.asarray(flow.nx, dtype=np.float32)
-        ny = np.asarray(flow.ny, dtype=np.float32)
-        unc = np.asarray(flow.uncertainty, dtype=np.float32) if flow.uncertainty is not None else None
+        idx, nx, ny, unc = _window_flow_arrays(flow, len(ev), window.index)
         ok = np.isfinite(nx) & np.isfinite(ny) & ((nx != 0) | (ny != 0))
         idx, nx, ny = idx[ok], nx[ok], ny[ok]
         unc = unc[ok] if unc is not None else None
@@ -889,6 +904,33 @@ def _prepare_with_context_in_worker(window: Window, context: np.ndarray | None, 
     """:func:`_prepare_in_worker` for a caller that picks the windows (a live run, which may
     drop some): the flow's context comes with the window instead of from the worker's history."""
     return _WORKER_PIPELINE._estimate_and_prepare(window, context, sample_counts, boxes)
+
+
+def _window_flow_arrays(flow, n_events: int, window_index: int):
+    """``(index, nx, ny, uncertainty or None)`` of one window's flow (a :class:`NormalFlow`, or
+    any object or mapping with those fields), checked against the window's ``n_events``: a
+    flow from a ``flow_fn`` or given to :meth:`MotionSegmentationPipeline.process` must index
+    the window's own events (-1 would silently be its last event)."""
+    where = f"window {window_index}: the flow"
+    get = (lambda k: flow.get(k)) if isinstance(flow, dict) else (lambda k: getattr(flow, k, None))
+    idx, nx, ny, unc = (get(k) for k in ("index", "nx", "ny", "uncertainty"))
+    if idx is None or nx is None or ny is None:
+        raise EventDataError(f"{where} must have index, nx, ny (a NormalFlow or a mapping of them), got "
+                             f"{type(flow).__name__}")
+    idx = np.asarray(idx)
+    if idx.ndim != 1 or not (np.issubdtype(idx.dtype, np.integer) or len(idx) == 0):
+        raise EventDataError(f"{where}: 'index' must be 1-D integer positions, got {idx.dtype} {idx.shape}")
+    idx = idx.astype(np.int64, copy=False)
+    arrays = [np.asarray(a, dtype=np.float32) for a in (nx, ny)]
+    if unc is not None:
+        arrays.append(np.asarray(unc, dtype=np.float32))
+    for name, a in zip(("nx", "ny", "uncertainty"), arrays):
+        if a.shape != idx.shape:
+            raise EventDataError(f"{where}: '{name}' has shape {a.shape}, 'index' {idx.shape}")
+    if len(idx) and (idx.min() < 0 or idx.max() >= n_events):
+        bad = int(idx.min()) if idx.min() < 0 else int(idx.max())
+        raise EventDataError(f"{where}: 'index' {bad} is not one of the window's {n_events} events")
+    return idx, arrays[0], arrays[1], arrays[2] if unc is not None else None
 
 
 def _merge_flows(targets: np.ndarray, inside: np.ndarray, rest, tracked):

@@ -924,3 +924,28 @@ def test_propagating_labels_refuses_points_of_two_lengths(sim):
         propagate_labels(res, np.array([100.0, 100.0, 100.0]), np.array([100.0]))
     with pytest.raises(EventDataError, match="must be finite positions"):
         propagate_labels(res, np.array([np.nan]), np.array([1.0]))
+
+
+def test_the_pipeline_names_wrong_arguments_instead_of_failing_inside(sim, tmp_path):
+    from evseg.errors import EventDataError
+    from evseg.segmentation import SegmentationConfig
+    from evseg.windows import Window
+
+    rec, d = sim
+    size = rec.stream.sensor_size
+    with pytest.raises(ConfigError, match=r"config must be a PipelineConfig, got SegmentationConfig \(segmentation settings"):
+        MotionSegmentationPipeline(SegmentationConfig(), sensor_size=size)
+    with pytest.raises(ConfigError, match="calibration must be a Calibration or a calibration file, got int"):
+        MotionSegmentationPipeline(PipelineConfig(flow="planefit"), sensor_size=size, calibration=3)
+    pipe = MotionSegmentationPipeline(None, sensor_size=size)  # None: the defaults
+    assert pipe.config.flow == "learned"
+    pipe = MotionSegmentationPipeline(PipelineConfig(flow="planefit"), sensor_size=size)
+    with pytest.raises(ConfigError, match="process\\(\\) takes a Window .* got EventStream; to segment events, use run"):
+        pipe.process(rec.stream)
+    window = Window(0, 0, 10_000, rec.stream.events[:100], 0)
+    flow = {"index": np.array([-1]), "nx": np.array([1.0]), "ny": np.array([0.0])}
+    with pytest.raises(EventDataError, match="window 0: the flow: 'index' -1 is not one of the window's 100 events"):
+        pipe.process(window, flow)
+    flow = {"index": np.array([0, 1]), "nx": np.array([1.0]), "ny": np.array([0.0, 0.0])}
+    with pytest.raises(EventDataError, match=r"window 0: the flow: 'nx' has shape \(1,\), 'index' \(2,\)"):
+        pipe.process(window, flow)
