@@ -57,10 +57,20 @@ def make_events(x, y, t, p) -> np.ndarray:
     [-1]
     """
     x, y, t, p = (np.asarray(a) for a in (x, y, t, p))
+    for name, a in (("x", x), ("y", y), ("t", t), ("p", p)):
+        if a.ndim != 1:
+            raise EventDataError(f"make_events: field '{name}' must be a 1-D sequence of values, got shape {a.shape}")
+        if len(a) and (not (np.issubdtype(a.dtype, np.number) or np.issubdtype(a.dtype, np.bool_))
+                       or np.issubdtype(a.dtype, np.complexfloating)):
+            raise EventDataError(f"make_events: field '{name}' must hold real numbers, got {a.dtype} "
+                                 f"(first value {a[0]!r})")
     n = len(x)
     for name, a in (("y", y), ("t", t), ("p", p)):
         if len(a) != n:
             raise EventDataError(f"make_events: field '{name}' has {len(a)} values, 'x' has {n}")
+    if n and np.issubdtype(p.dtype, np.floating) and not np.isfinite(p).all():
+        i = int(np.flatnonzero(~np.isfinite(p))[0])
+        raise EventDataError(f"make_events: field 'p' = {p[i].item()!r} at event {i} is not a polarity")
     # Storing into the integer fields would truncate or wrap silently: time in seconds would all
     # become 0, x = -1 would become 65535.
     for name, a, lo, hi in (("x", x, 0, 65535), ("y", y, 0, 65535), ("t", t, -(2**63), 2**63 - 1)) if n else ():
@@ -141,6 +151,8 @@ def validate_events(
     if not isinstance(events, np.ndarray) or events.dtype != EVENT_DTYPE:
         got = getattr(events, "dtype", type(events).__name__)
         raise EventDataError(f"{source}: expected an array of dtype {EVENT_DTYPE}, got {got}")
+    if events.ndim != 1:
+        raise EventDataError(f"{source}: expected a 1-D array of events, got shape {events.shape}")
     if len(events) == 0:
         return
     if check_sorted:
@@ -183,6 +195,11 @@ class EventStream:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "sensor_size", checked_sensor_size(self.sensor_size))
+        off = self.t_offset_us
+        if isinstance(off, (bool, np.bool_)) or not (isinstance(off, (int, np.integer))
+                                                     or (isinstance(off, float) and off.is_integer())):
+            raise EventDataError(f"EventStream.t_offset_us must be whole microseconds, got {off!r}")
+        object.__setattr__(self, "t_offset_us", int(off))
         # Unsorted or off-sensor events would make durations, windows and labels silently
         # wrong later; one O(N) pass here names the first bad event instead.
         validate_events(self.events, self.sensor_size, source="EventStream.events")

@@ -92,8 +92,12 @@ def replay(
     Yields:
         Consecutive slices of the events, each within one ``packet_us`` span.
     """
-    if not speed > 0:
-        raise ConfigError(f"replay speed must be positive, got {speed!r}")
+    if isinstance(chunks, EventStream):
+        chunks = [chunks.events]
+    elif isinstance(chunks, np.ndarray):
+        chunks = [chunks]  # one array of events: a recording of one chunk
+    if not (isinstance(speed, (int, float, np.integer, np.floating)) and speed > 0):
+        raise ConfigError(f"replay speed must be a positive number, got {speed!r}")
     if int(packet_us) != packet_us or packet_us <= 0:
         raise ConfigError(f"replay packet_us must be a positive integer (us), got {packet_us!r}")
     packet_us = int(packet_us)

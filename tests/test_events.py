@@ -68,3 +68,24 @@ def test_the_pipeline_refuses_a_fractional_sensor_size():
 
     with pytest.raises(EventDataError, match=r"got \(346.9, 260\)"):
         MotionSegmentationPipeline(PipelineConfig(flow="planefit"), sensor_size=(346.9, 260))
+
+
+@pytest.mark.parametrize("args, message", [
+    ((1, 2, 3, 4), "field 'x' must be a 1-D sequence of values, got shape ()"),
+    (([1, None], [1, 1], [0, 1], [1, 1]), "field 'x' must hold real numbers, got object"),
+    (([1], [1], [0], ["on"]), "field 'p' must hold real numbers"),
+    (([1], [1], [0], [float("nan")]), "field 'p' = nan at event 0 is not a polarity"),
+])
+def test_make_events_names_the_field_of_unusable_values(args, message):
+    import re
+
+    with pytest.raises(EventDataError, match=re.escape(message)):
+        make_events(*args)
+
+
+def test_an_event_stream_needs_one_dimension_and_a_whole_offset():
+    ev = make_events([0, 1], [0, 0], [0, 1], [1, 1])
+    with pytest.raises(EventDataError, match=r"expected a 1-D array of events, got shape \(1, 2\)"):
+        EventStream(ev.reshape(1, 2), (8, 8))
+    with pytest.raises(EventDataError, match="t_offset_us must be whole microseconds, got 1.7"):
+        EventStream(ev, (8, 8), t_offset_us=1.7)

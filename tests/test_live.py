@@ -54,7 +54,7 @@ def test_replay_hands_out_each_packet_once_the_sensor_clock_passed_its_end():
                                                                           [8_500, 8_999], [9_000]]
 
 
-@pytest.mark.parametrize("bad, match", [({"speed": 0}, "speed must be positive"),
+@pytest.mark.parametrize("bad, match", [({"speed": 0}, "speed must be a positive number"),
                                         ({"packet_us": 0}, "packet_us must be a positive integer")])
 def test_bad_replay_settings_are_config_errors(bad, match):
     with pytest.raises(ConfigError, match=match):
@@ -204,3 +204,23 @@ def test_segment_realtime_refuses_precomputed_flow(stream, tmp_path, capsys):
     assert main(["segment", str(rec), "--realtime", "--flow", str(flow), "--out", str(tmp_path / "r.npz")]) == 2
     assert "--realtime replays a recording as a live camera" in capsys.readouterr().err
     assert not (tmp_path / "r.npz").exists()
+
+
+def test_replay_and_run_live_take_one_array_of_events():
+    # Iterating one array hands out single events (numpy records): it is taken as one chunk.
+    from evseg.events import make_events
+    from evseg.live import replay
+
+    ev = make_events(list(range(5)), [0] * 5, [0, 500, 1500, 2500, 3500], [1] * 5)
+    packets = list(replay(ev, speed=float("inf")))
+    assert [len(p) for p in packets] == [2, 1, 1, 1] and np.concatenate(packets).tolist() == ev.tolist()
+    with pytest.raises(ConfigError, match="replay speed must be a positive number, got '2'"):
+        list(replay([ev], speed="2"))
+
+
+def test_onnx_flow_threads_must_be_a_count():
+    from evseg.veckm_flow import OnnxNormalFlow
+
+    for bad in (0, -3, "2", 1.5):
+        with pytest.raises(ConfigError, match="threads must be an integer >= 1 or None"):
+            OnnxNormalFlow(threads=bad)

@@ -127,7 +127,12 @@ class OnnxNormalFlow:
         if model_path is None and not path.is_file():
             raise ModelError(f"{path}: no shipped default model in this build; pass a model_path (evseg export)")
         self.model_path = path
-        self.threads = None if threads is None else max(1, int(threads))
+        if threads is not None and (isinstance(threads, (bool, np.bool_)) or not isinstance(threads, (int, np.integer))
+                                    or threads < 1):
+            from evseg.errors import ConfigError
+
+            raise ConfigError(f"OnnxNormalFlow: threads must be an integer >= 1 or None (all cores), got {threads!r}")
+        self.threads = None if threads is None else int(threads)
         self.session = _session(path, self.threads)
         meta = self.session.get_modelmeta().custom_metadata_map
         self.cfg, self.matrix = _parse_metadata(path, meta)

@@ -135,6 +135,12 @@ class Recording:
 
     def close(self) -> None:
         self._source.close()
+        self._closed = True
+
+    def _check_open(self) -> None:
+        if getattr(self, "_closed", False):
+            raise EvsegError(f"{self.path}: the recording was closed (its with-block has ended); open it again "
+                             "to read it")
 
     def __repr__(self) -> str:
         return (
@@ -163,6 +169,7 @@ class Recording:
         without decoding the file (arrays, HDF5), else None. For progress bars: the ends are
         not validated (a broken file still fails in :meth:`chunks`), and with ``sort=True`` of
         an unsorted file they need not be the earliest and latest times."""
+        self._check_open()
         span = getattr(self._source, "time_span_us", None)
         return span() if span is not None else None
 
@@ -231,6 +238,7 @@ class Recording:
         Memory is bounded by one chunk, except with ``sort=True`` (whole recording).
         Each call starts again from the beginning of the file.
         """
+        self._check_open()
         if not self._sort:
             yield from self._raw_checked(check_sorted=True)
             return

@@ -14,6 +14,7 @@ from evseg.simulator.ground_truth import layer_flow, log_gradient_at, project_on
 from evseg.simulator.recording import SimulatedRecording
 from evseg.simulator.render import Frame, SceneInstance, child_rng, render_frame, sample_scene
 from evseg.simulator.scene import SceneConfig
+from evseg.simulator.scene import SceneConfig
 
 
 def substep_count(scene: SceneInstance, cfg: SceneConfig, duration_us: int) -> int:
@@ -37,7 +38,7 @@ def _smooth_log(frame: Frame, eps: float, sigma: float) -> tuple[np.ndarray, np.
 
 
 def simulate(
-    cfg: SceneConfig,
+    cfg: SceneConfig | str,
     seed: int = 0,
     duration_us: int = 200_000,
     progress: Callable[[int, int], None] | None = None,
@@ -52,6 +53,12 @@ def simulate(
         per-event label, optical flow and normal flow (see
         :mod:`evseg.simulator.ground_truth`).
     """
+    if isinstance(cfg, str):
+        from evseg.simulator.presets import load_scene_preset
+
+        cfg = load_scene_preset(cfg)  # a preset name, as the CLI takes it
+    if not isinstance(cfg, SceneConfig):
+        raise ConfigError(f"simulate needs a SceneConfig or a preset name, got {type(cfg).__name__}")
     for name, value in (("seed", seed), ("duration_us", duration_us)):
         # int(1.5) would silently simulate seed 1 (and record it as 1).
         if isinstance(value, (bool, np.bool_)) or not (isinstance(value, (int, np.integer))

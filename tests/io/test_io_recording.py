@@ -122,3 +122,15 @@ def test_batched_chunks_hand_over_the_events_before_a_damaged_packet():
     assert len(next(chunks).events) == 8
     with pytest.raises(FormatError, match="damaged packet 2"):
         next(chunks)
+
+
+def test_a_closed_recording_says_so(tmp_path):
+    from evseg.errors import EvsegError
+
+    p = _npz(tmp_path, sample_events(10))
+    with open_recording(p) as rec:
+        pass
+    with pytest.raises(EvsegError, match="the recording was closed"):
+        rec.read_all()
+    with pytest.raises(EvsegError, match="the recording was closed"):
+        list(rec.chunks())

@@ -114,3 +114,11 @@ def test_simulate_refuses_a_seed_it_would_change(seed):
 def test_nan_in_any_number_is_refused():
     with pytest.raises(ConfigError, match="'sensor.c_pos' must be finite, got nan"):
         scene_from_dict({"sensor": {"c_pos": float("nan")}})
+
+
+def test_simulate_takes_a_preset_name():
+    a = simulate("ego_only", seed=3, duration_us=2_000)
+    b = simulate(load_scene_preset("ego_only"), seed=3, duration_us=2_000)
+    assert len(a) == len(b) and (a.stream.events == b.stream.events).all()
+    with pytest.raises(ConfigError, match="simulate needs a SceneConfig or a preset name, got int"):
+        simulate(3)
