@@ -55,7 +55,7 @@ def check_flow(data: Mapping, n_events: int | None = None, source: str = "precom
     are ignored.
     """
     for key in FLOW_KEYS:
-        if key not in data:
+        if key not in data or data[key] is None:
             raise error(f"{source}: no key '{key}' (expected index, nx, ny[, uncertainty])")
     arrays = {}
     for key in FLOW_KEYS + OPTIONAL_FLOW_KEYS:
@@ -190,12 +190,20 @@ def save_flow_file(
     """
     from evseg.io._atomic import atomic_savez
 
-    flow = check_flow({"index": index, "nx": nx, "ny": ny, "uncertainty": uncertainty},
-                      source=f"save_flow_file({path})")
-    extra = {"method": np.str_(method), "config": np.str_(json.dumps(config or {}))}
+    where = f"save_flow_file({path})"
+    flow = check_flow({"index": index, "nx": nx, "ny": ny, "uncertainty": uncertainty}, source=where)
+    try:
+        text = json.dumps(config or {})
+    except (TypeError, ValueError) as exc:
+        raise EvsegError(f"{where}: config must be JSON-serialisable settings ({exc})") from None
+    extra = {"method": np.str_(method), "config": np.str_(text)}
     if sensor_size is not None:
-        extra["sensor_size"] = np.asarray(sensor_size, dtype=np.int64)
+        from evseg.events import checked_sensor_size
+
+        extra["sensor_size"] = np.asarray(checked_sensor_size(sensor_size), dtype=np.int64)
     if window_us is not None:
+        if isinstance(window_us, (bool, np.bool_)) or not isinstance(window_us, (int, np.integer)) or window_us <= 0:
+            raise EvsegError(f"{where}: window_us must be a positive integer (us), got {window_us!r}")
         extra["window_us"] = np.int64(window_us)
     atomic_savez(path, **flow, **extra)
 

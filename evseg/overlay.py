@@ -59,11 +59,25 @@ def label_overlay(
     """
     import cv2
 
-    w, h = sensor_size
+    from evseg.events import checked_sensor_size, first_off_sensor, validate_events
+
+    w, h = checked_sensor_size(sensor_size)
+    validate_events(events, None, source="label_overlay events", check_sorted=False)
+    labels = np.asarray(labels)
+    if labels.shape != (len(events),):
+        raise EvsegError(f"label_overlay: labels has shape {labels.shape}, expected one per event ({len(events)},)")
+    off = first_off_sensor(events, (w, h))
+    if off is not None:
+        raise EvsegError(f"label_overlay: {off} is outside the {w}x{h} sensor (sensor_size is (width, height))")
+    if not isinstance(boxes, dict):
+        raise EvsegError(f"label_overlay: boxes must map object id -> (x0, y0, x1, y1), got {type(boxes).__name__}")
+    boxes = {oid: tuple(int(round(v)) for v in box) for oid, box in boxes.items()}
     if scale is None:
         scale = auto_scale(h)
+    if isinstance(scale, (bool, np.bool_)) or int(scale) != scale or scale < 1:
+        raise EvsegError(f"label_overlay: scale must be a whole number >= 1, got {scale!r}")
+    scale = int(scale)
     img = np.zeros((h, w, 3), dtype=np.uint8)
-    labels = np.asarray(labels)
     for lab in np.unique(labels):
         sel = labels == lab
         color = UNASSIGNED_BGR if lab < 0 else BACKGROUND_BGR if lab == 0 else object_color(int(lab))

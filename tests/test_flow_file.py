@@ -143,3 +143,28 @@ def test_a_nan_uncertainty_is_refused_not_dropped_silently():
         check_flow(data)
     data["uncertainty"] = np.array([0.1, np.inf])  # inf: a flow to ignore, as the plane fit marks rejected fits
     assert np.isinf(check_flow(data)["uncertainty"][1])
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(index=None), "no key 'index'"),
+    (dict(config={"f": object()}), "config must be JSON-serialisable settings"),
+    (dict(window_us="10ms"), "window_us must be a positive integer \\(us\\), got '10ms'"),
+    (dict(sensor_size="346x260"), "sensor_size must be \\(width, height\\)"),
+])
+def test_save_flow_file_names_a_bad_argument(tmp_path, kwargs, message):
+    args = dict(index=np.array([0, 1]), nx=np.array([1.0, 2.0]), ny=np.array([0.0, 1.0]))
+    args.update(kwargs)
+    with pytest.raises(EvsegError, match=message):
+        save_flow_file(tmp_path / "f.npz", **args)
+    assert not (tmp_path / "f.npz").exists()
+
+
+def test_writers_refuse_a_folder_before_writing(tmp_path):
+    from evseg.events import EventStream, make_events
+    from evseg.io import write_npz
+
+    (tmp_path / "out.npz").mkdir()
+    with pytest.raises(EvsegError, match="out.npz: is a folder; give a file name to write"):
+        save_flow_file(tmp_path / "out.npz", np.array([0]), np.array([1.0]), np.array([0.0]))
+    with pytest.raises(EvsegError, match="is a folder"):
+        write_npz(EventStream(make_events([0], [0], [0], [1]), (4, 4)), tmp_path / "out.npz")

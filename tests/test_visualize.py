@@ -97,3 +97,21 @@ def test_video_frames_of_another_size_or_kind_are_refused_not_dropped(tmp_path):
     import cv2
 
     assert int(cv2.VideoCapture(str(tmp_path / "v.mp4")).get(cv2.CAP_PROP_FRAME_COUNT)) == 2
+
+
+def test_label_overlay_names_bad_arguments():
+    import pytest
+
+    from evseg.errors import EvsegError
+    from evseg.events import make_events
+    from evseg.overlay import label_overlay
+
+    ev = make_events([1, 300], [2, 5], [0, 1], [1, 1])
+    with pytest.raises(EvsegError, match=r"labels has shape \(1,\), expected one per event \(2,\)"):
+        label_overlay(ev, np.array([1]), {}, (346, 260))
+    with pytest.raises(EvsegError, match=r"event 1 at \(300, 5\) is outside the 260x346 sensor"):
+        label_overlay(ev, np.array([1, 1]), {}, (260, 346))
+    with pytest.raises(EvsegError, match="scale must be a whole number >= 1, got 0"):
+        label_overlay(ev, np.array([1, 1]), {}, (346, 260), scale=0)
+    img = label_overlay(ev, np.array([1, 1]), {1: (0.4, 1.6, 300.2, 5.0)}, (346, 260), scale=1)  # float box
+    assert img.shape == (260, 346, 3)

@@ -16,7 +16,14 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     A crash or an exception leaves ``path`` untouched (either the old file or none) and
     removes the temporary file, so readers never see a half-written recording.
     """
+    from evseg.errors import EvsegError
+
     path = Path(path)
+    if path.is_dir():
+        # Found only at the final rename otherwise, after all the work (IsADirectoryError).
+        raise EvsegError(f"{path}: is a folder; give a file name to write")
+    if path.parent.exists() and not path.parent.is_dir():
+        raise EvsegError(f"{path}: {path.parent} is a file, not a folder")
     path.parent.mkdir(parents=True, exist_ok=True)
     # A fresh name the writer creates itself, so the file gets the usual permissions (umask)
     # rather than mkstemp's 0600.
