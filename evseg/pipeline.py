@@ -388,9 +388,9 @@ class MotionSegmentationPipeline:
         its last displacement, so an object whose motion holds is matched to its track (and keeps
         its id) in the window after the gap. The skipped windows do not count as misses.
         Motion prediction from the previous window needs nothing: it uses the windows' times."""
+        if isinstance(n, (bool, np.bool_)) or int(n) != n or n < 0:
+            raise ValueError(f"skip_windows: n must be a whole number of windows >= 0, got {n!r}")
         n = int(n)
-        if n < 0:
-            raise ValueError(f"skip_windows: n must be >= 0, got {n}")
         if n == 0:
             return
         self._tracker.predict({oid: (dx * n, dy * n) for oid, (_, (dx, dy)) in self._track_motion.items()},

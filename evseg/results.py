@@ -241,6 +241,14 @@ def load_result(path: str | Path) -> SegmentationOutput:
             missing = {"label", "window_t0_us", "window_t1_us", "boxes", "sensor_size"} - set(z.files)
             if missing:
                 raise FormatError(f"{path}: not an evseg result, missing keys {sorted(missing)}")
+            label, boxes, size = z["label"], z["boxes"], z["sensor_size"]
+            if label.ndim != 1 or not np.issubdtype(label.dtype, np.integer):
+                raise FormatError(f"{path}: key 'label' must be 1-D integers, got {label.dtype} {label.shape}")
+            if boxes.ndim != 2 or boxes.shape[1] != 6:
+                raise FormatError(f"{path}: key 'boxes' must have rows (window, id, x0, y0, x1, y1), got shape "
+                                  f"{boxes.shape}")
+            if size.shape != (2,):
+                raise FormatError(f"{path}: key 'sensor_size' must be [width, height], got {size.tolist()}")
             return SegmentationOutput(
                 label=z["label"],
                 window_t0_us=z["window_t0_us"],

@@ -126,3 +126,14 @@ def test_a_mask_of_another_shape_is_refused_not_stored_shifted(tmp_path):
     with pytest.raises(ValueError, match=r"window 0: the mask of object 1 has shape \(8, 6\), expected \(height, width\) = \(6, 8\)"):
         w.add_window(0, 10, {1: (0, 0, 1, 1)}, {1: np.zeros((8, 6), bool)})
     w.abort()
+
+
+def test_load_result_refuses_arrays_that_do_not_fit_the_schema(tmp_path):
+    good = dict(label=np.zeros(3, np.int16), window_t0_us=np.zeros(1, np.int64), window_t1_us=np.ones(1, np.int64),
+                boxes=np.zeros((0, 6), np.int64), sensor_size=np.array([8, 6]))
+    for key, value, message in (("label", np.zeros(3), "key 'label' must be 1-D integers"),
+                                ("boxes", np.zeros((2, 3), np.int64), "key 'boxes' must have rows"),
+                                ("sensor_size", np.array([8, 6, 1]), "key 'sensor_size' must be \\[width, height\\]")):
+        np.savez(tmp_path / "r.npz", **{**good, key: value})
+        with pytest.raises(FormatError, match=message):
+            load_result(tmp_path / "r.npz")

@@ -300,6 +300,9 @@ def write_npz_chunks(
     ``t_offset_us`` int64, and ``K``, ``D`` when there is a calibration.
     """
     path = Path(path)
+    if path.suffix.lower() != ".npz":
+        # The readers pick the format by extension: another one would write a file evseg refuses.
+        raise FormatError(f"{path}: an .npz recording must be named *.npz")
     with atomic_path(path) as tmp, tempfile.TemporaryDirectory(dir=path.parent) as work:
         raw = Path(work) / "events.bin"
         n = 0

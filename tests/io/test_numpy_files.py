@@ -170,3 +170,9 @@ def test_a_camera_matrix_alone_is_a_calibration_and_d_alone_is_refused(tmp_path)
     np.savez(tmp_path / "d.npz", D=np.zeros(4), **cols)
     with pytest.raises(FormatError, match=r"d.npz: npz: key 'D' \(distortion\) without the camera matrix 'K'"):
         read_events(tmp_path / "d.npz")
+
+
+def test_write_npz_needs_the_npz_extension(tmp_path):
+    with pytest.raises(FormatError, match=r"e.bin: an .npz recording must be named \*.npz"):
+        write_npz(EventStream(sample_events(5), (64, 48)), tmp_path / "e.bin")
+    assert not (tmp_path / "e.bin").exists()
