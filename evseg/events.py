@@ -35,6 +35,7 @@ from typing import TYPE_CHECKING, Iterator
 
 import numpy as np
 
+from evseg.checks import is_whole
 from evseg.errors import EventDataError
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -196,8 +197,7 @@ class EventStream:
     def __post_init__(self) -> None:
         object.__setattr__(self, "sensor_size", checked_sensor_size(self.sensor_size))
         off = self.t_offset_us
-        if isinstance(off, (bool, np.bool_)) or not (isinstance(off, (int, np.integer))
-                                                     or (isinstance(off, float) and off.is_integer())):
+        if not is_whole(off):
             raise EventDataError(f"EventStream.t_offset_us must be whole microseconds, got {off!r}")
         object.__setattr__(self, "t_offset_us", int(off))
         # Unsorted or off-sensor events would make durations, windows and labels silently

@@ -202,7 +202,9 @@ def save_flow_file(
 
         extra["sensor_size"] = np.asarray(checked_sensor_size(sensor_size), dtype=np.int64)
     if window_us is not None:
-        if isinstance(window_us, (bool, np.bool_)) or not isinstance(window_us, (int, np.integer)) or window_us <= 0:
+        from evseg.checks import is_int
+
+        if not is_int(window_us) or window_us <= 0:
             raise EvsegError(f"{where}: window_us must be a positive integer (us), got {window_us!r}")
         extra["window_us"] = np.int64(window_us)
     atomic_savez(path, **flow, **extra)

@@ -40,9 +40,10 @@ from typing import TYPE_CHECKING, Callable, Iterable, Iterator
 
 import numpy as np
 
+from evseg.checks import is_whole
 from evseg.errors import ConfigError, EventDataError
-from evseg.events import EVENT_DTYPE, EventStream, first_off_sensor
-from evseg.windows import Window
+from evseg.events import EVENT_DTYPE, first_off_sensor
+from evseg.windows import Window, as_event_chunks
 
 if TYPE_CHECKING:  # pragma: no cover
     from evseg.pipeline import MotionSegmentationPipeline, WindowResult
@@ -92,10 +93,7 @@ def replay(
     Yields:
         Consecutive slices of the events, each within one ``packet_us`` span.
     """
-    if isinstance(chunks, EventStream):
-        chunks = [chunks.events]
-    elif isinstance(chunks, np.ndarray):
-        chunks = [chunks]  # one array of events: a recording of one chunk
+    chunks = as_event_chunks(chunks, "replay")  # one array of events: a recording of one chunk
     if not (isinstance(speed, (int, float, np.integer, np.floating)) and speed > 0):
         raise ConfigError(f"replay speed must be a positive number, got {speed!r}")
     if int(packet_us) != packet_us or packet_us <= 0:
@@ -190,19 +188,14 @@ def run_live(
         :class:`LiveResult` per segmented window, in time order; ``result.window.first_event``
         counts the source's events before the window, as ``pipeline.run`` does.
     """
-    if max_lag_us is not None and not (isinstance(max_lag_us, (int, float, np.integer, np.floating))
-                                       and not isinstance(max_lag_us, (bool, np.bool_))
-                                       and float(max_lag_us).is_integer() and max_lag_us >= 0):
+    if max_lag_us is not None and not (is_whole(max_lag_us) and max_lag_us >= 0):
         raise ConfigError(f"max_lag_us must be a non-negative integer (us) or None, got {max_lag_us!r}")
     from evseg.pipeline import MotionSegmentationPipeline
 
     if not isinstance(pipeline, MotionSegmentationPipeline):
         raise ConfigError(f"run_live needs a MotionSegmentationPipeline, got {type(pipeline).__name__}")
     # One array (or stream) of events is a source of one packet, as pipeline.run takes it.
-    if isinstance(source, EventStream):
-        source = [source.events]
-    elif isinstance(source, np.ndarray):
-        source = [source]
+    source = as_event_chunks(source, "run_live")
     return pipeline._exclusive(_run_live(pipeline, source, max_lag_us, clock))
 
 

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from evseg.checks import is_whole
 from evseg.errors import EvsegError
 
 BACKGROUND_BGR = (150, 150, 150)
@@ -74,7 +75,7 @@ def label_overlay(
     boxes = {oid: tuple(int(round(v)) for v in box) for oid, box in boxes.items()}
     if scale is None:
         scale = auto_scale(h)
-    if isinstance(scale, (bool, np.bool_)) or int(scale) != scale or scale < 1:
+    if not is_whole(scale) or scale < 1:
         raise EvsegError(f"label_overlay: scale must be a whole number >= 1, got {scale!r}")
     scale = int(scale)
     img = np.zeros((h, w, 3), dtype=np.uint8)

@@ -37,12 +37,13 @@ from typing import Callable, Iterable, Iterator, Protocol
 import numpy as np
 
 from evseg.calibration import Calibration
+from evseg.checks import is_whole
 from evseg.errors import CalibrationError, ConfigError, EventDataError, EvsegError, FormatError
-from evseg.events import EVENT_DTYPE, EventStream, checked_sensor_size, first_off_sensor, validate_events
+from evseg.events import EVENT_DTYPE, EventStream, checked_sensor_size, first_off_sensor
 from evseg.flow_file import WindowFlow, check_flow, load_flow_file, slice_flow  # noqa: F401 (load_flow_file: public here too)
 from evseg.tracking import ObjectTracker
 from evseg.undistortion import UndistortionTable, undistort_normal_flow
-from evseg.windows import EventHistory, Window, stream_time_windows
+from evseg.windows import EventHistory, Window, as_event_chunks, ordered_time_windows, stream_time_windows
 
 
 class NormalFlowLike(Protocol):
@@ -56,13 +57,6 @@ FlowFn = Callable[[np.ndarray, tuple[int, int]], NormalFlowLike]
 
 WORKERS = ("thread", "process")
 """Where :attr:`PipelineConfig.overlap` runs the next window's flow and preparation."""
-
-
-def _whole(value) -> bool:
-    """An integer (not a bool), or a float holding one (as YAML or arithmetic may give)."""
-    if isinstance(value, (bool, np.bool_)):
-        return False
-    return isinstance(value, (int, np.integer)) or (isinstance(value, (float, np.floating)) and float(value).is_integer())
 
 
 @dataclass(frozen=True)
@@ -183,12 +177,12 @@ class PipelineConfig:
             value = getattr(self, name)
             if value is None and name == "stride_us":
                 continue
-            if not _whole(value) or value <= 0:
+            if not is_whole(value) or value <= 0:
                 raise ConfigError(f"pipeline.{name} must be a positive whole number of microseconds, got {value!r}")
             object.__setattr__(self, name, int(value))
         for name in ("threads", "target_cell_px"):
             value = getattr(self, name)
-            if value is not None and (not _whole(value) or value < 1):
+            if value is not None and (not is_whole(value) or value < 1):
                 raise ConfigError(f"pipeline.{name} must be an integer >= 1 or null, got {value!r}")
         if not isinstance(self.overlap, (bool, np.bool_)):
             raise ConfigError(f"pipeline.overlap must be true or false, got {self.overlap!r}")
@@ -388,7 +382,7 @@ class MotionSegmentationPipeline:
         its last displacement, so an object whose motion holds is matched to its track (and keeps
         its id) in the window after the gap. The skipped windows do not count as misses.
         Motion prediction from the previous window needs nothing: it uses the windows' times."""
-        if isinstance(n, (bool, np.bool_)) or int(n) != n or n < 0:
+        if not is_whole(n) or n < 0:
             raise ValueError(f"skip_windows: n must be a whole number of windows >= 0, got {n!r}")
         n = int(n)
         if n == 0:
@@ -488,8 +482,12 @@ class MotionSegmentationPipeline:
         if not isinstance(window, Window):
             raise ConfigError(f"process() takes a Window (evseg.windows.Window, as run() cuts them), got "
                               f"{type(window).__name__}; to segment events, use run()")
-        if context is not None:
-            validate_events(context, self.sensor_size, source="process(): context")
+        if context is not None and (not isinstance(context, np.ndarray) or context.dtype != EVENT_DTYPE
+                                    or context.ndim != 1):
+            # Its order and pixels are checked by the flow estimator with the window's events
+            # (an O(1) check here: run() calls this for every window).
+            got = f"{context.dtype} {context.shape}" if isinstance(context, np.ndarray) else type(context).__name__
+            raise EventDataError(f"process(): context must be a 1-D event array ({EVENT_DTYPE}), got {got}")
         timings: dict[str, float] = {}
         if flow is None:
             flow, timings = self._estimate_flow(window.events, context, window.t0_us,
@@ -730,11 +728,11 @@ class MotionSegmentationPipeline:
         # from 1): the same stream gives the same labels however often it is run.
         self.reset()
         seen = [0]
-        chunks = _checked_chunks(_as_chunks(source), seen, self.sensor_size)
+        chunks = _checked_chunks(as_event_chunks(source, "MotionSegmentationPipeline.run"), seen, self.sensor_size)
         cfg = self.config
         needs_context = precomputed_flow is None and cfg.flow != "precomputed"
         history = EventHistory(self.kept_us if needs_context else 0)
-        windows = stream_time_windows(chunks, cfg.window_us, cfg.stride_us)
+        windows = ordered_time_windows(chunks, cfg.window_us, cfg.stride_us)  # _checked_chunks checked them
         if self._overlap and precomputed_flow is None:
             yield from self._run_overlapped(windows, history)
             return
@@ -944,24 +942,6 @@ def _merge_flows(targets: np.ndarray, inside: np.ndarray, rest, tracked):
     for part, where in ((rest, ~inside), (tracked, inside)):
         nx[where], ny[where], unc[where] = part.nx, part.ny, part.uncertainty
     return NormalFlow(targets, nx, ny, unc)
-
-
-def _as_chunks(source) -> Iterable[np.ndarray]:
-    """What :meth:`MotionSegmentationPipeline.run` accepts, as an iterable of chunks."""
-    if isinstance(source, EventStream):
-        return [source.events]
-    if isinstance(source, np.ndarray):
-        if source.dtype == EVENT_DTYPE:
-            return [source]
-        raise EventDataError(
-            f"MotionSegmentationPipeline.run: an array of dtype {source.dtype} is not events; pass an "
-            f"array of dtype {EVENT_DTYPE} (evseg.events.make_events(x, y, t, p) makes one), an "
-            "EventStream, or an iterable of such arrays")
-    if isinstance(source, (str, bytes)) or not hasattr(source, "__iter__"):
-        raise EventDataError(
-            f"MotionSegmentationPipeline.run: expected an EventStream, an event array or an iterable "
-            f"of event arrays, got {type(source).__name__} (a file: evseg.io.open_recording(path).chunks())")
-    return source
 
 
 def _checked_chunks(chunks: Iterable[np.ndarray], seen: list[int],

@@ -12,6 +12,7 @@ from typing import Iterable, Iterator
 
 import numpy as np
 
+from evseg.checks import is_whole
 from evseg.errors import EventDataError
 from evseg.events import EVENT_DTYPE, validate_events
 
@@ -33,6 +34,27 @@ class Window:
     t1_us: int
     events: np.ndarray
     first_event: int
+
+
+def as_event_chunks(source, where: str) -> Iterable[np.ndarray]:
+    """A stream given as an :class:`~evseg.events.EventStream`, one event array or an iterable
+    of event arrays, as an iterable of event arrays; errors name ``where``."""
+    from evseg.events import EventStream
+
+    if isinstance(source, EventStream):
+        return [source.events]
+    if isinstance(source, np.ndarray):
+        if source.dtype == EVENT_DTYPE:
+            return [source]
+        raise EventDataError(
+            f"{where}: an array of dtype {source.dtype} is not events; pass an "
+            f"array of dtype {EVENT_DTYPE} (evseg.events.make_events(x, y, t, p) makes one), an "
+            "EventStream, or an iterable of such arrays")
+    if isinstance(source, (str, bytes)) or not hasattr(source, "__iter__"):
+        raise EventDataError(
+            f"{where}: expected an EventStream, an event array or an iterable "
+            f"of event arrays, got {type(source).__name__} (a file: evseg.io.open_recording(path).chunks())")
+    return source
 
 
 def _check_positive(name: str, value: int) -> int:
@@ -111,26 +133,44 @@ def stream_time_windows(
             (overlapping windows) or longer (gaps) than the window.
         t_start_us: start of the first window (default: time of the first event).
     """
+    yield from ordered_time_windows(_in_order(chunks), window_us, stride_us, t_start_us)
+
+
+def _in_order(chunks: Iterable[np.ndarray]) -> Iterator[np.ndarray]:
+    """``chunks`` as they are, after checking each is sorted events and none starts before the
+    one before it ended: windows are cut by searchsorted, so either would lose events silently."""
+    t_prev = None
+    for k, chunk in enumerate(chunks):
+        if len(chunk) == 0:
+            continue
+        validate_events(chunk, None, source=f"stream_time_windows: chunk {k}")
+        if t_prev is not None and int(chunk["t"][0]) < t_prev:
+            raise EventDataError(f"stream_time_windows: chunk {k} starts at t = {int(chunk['t'][0])} us, before "
+                                 f"the chunk before it ended (t = {t_prev} us)")
+        t_prev = int(chunk["t"][-1])
+        yield chunk
+
+
+def ordered_time_windows(
+    chunks: Iterable[np.ndarray],
+    window_us: int,
+    stride_us: int | None = None,
+    t_start_us: int | None = None,
+) -> Iterator[Window]:
+    """:func:`stream_time_windows` of chunks their caller has checked already (sorted events,
+    each starting where the one before ended; the pipeline's own checks name its chunks)."""
     window_us = _check_positive("window_us", window_us)
     stride_us = _check_positive("stride_us", stride_us if stride_us is not None else window_us)
-    if t_start_us is not None and (isinstance(t_start_us, bool) or int(t_start_us) != t_start_us):
+    if t_start_us is not None and not is_whole(t_start_us):
         raise ValueError(f"t_start_us must be a whole number of microseconds, got {t_start_us!r}")
     buf = np.empty(0, dtype=EVENT_DTYPE)
     buf_first = 0  # index in the recording of buf[0]
     seen = 0  # events received so far
     t0 = None if t_start_us is None else int(t_start_us)
     index = 0
-    t_prev = None
-    for k, chunk in enumerate(chunks):
+    for chunk in chunks:
         if len(chunk) == 0:
             continue
-        # Windows are cut by searchsorted: an unsorted chunk, or one that starts before the
-        # last ended, would lose events silently.
-        validate_events(chunk, None, source=f"stream_time_windows: chunk {k}")
-        if t_prev is not None and int(chunk["t"][0]) < t_prev:
-            raise EventDataError(f"stream_time_windows: chunk {k} starts at t = {int(chunk['t'][0])} us, before "
-                                 f"the chunk before it ended (t = {t_prev} us)")
-        t_prev = int(chunk["t"][-1])
         if t0 is None:
             t0 = int(chunk["t"][0])
         elif index == 0 and seen == 0 and int(chunk["t"][0]) < t0:

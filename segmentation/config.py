@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from evseg.checks import is_whole
 from evseg.errors import ConfigError, yaml_problem
 from evseg.segmentation.preprocessing import CELL_RULES
 
@@ -369,14 +370,9 @@ def _check_type(cfg: "SegmentationConfig", f: dataclasses.Field) -> None:
             value = bool(value)
         bad = not isinstance(value, bool)
     elif isinstance(default, int) or f.name == "max_nodes":
-        if isinstance(value, (bool, np.bool_)):
-            bad = True
-        elif isinstance(value, (int, np.integer)):
+        bad = not is_whole(value)
+        if not bad:
             value = int(value)
-        elif isinstance(value, (float, np.floating)) and float(value).is_integer():
-            value = int(value)
-        else:
-            bad = True
     elif isinstance(default, float) or (default is None and f.name in _OPTIONAL_FIELDS):
         if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
             bad = True

@@ -26,18 +26,12 @@ from evseg.segmentation.initialization import (
 from evseg.segmentation.preprocessing import NodeGraph, build_node_graph
 
 
-def _validate(x, y, t, nx, ny, uncertainty):
+def _arrays(x, y, t, nx, ny, uncertainty) -> dict[str, np.ndarray]:
+    """The window's arrays by name (checked by :func:`.solver._check_window_arrays`)."""
     arrays = {"x": x, "y": y, "t": t, "nx": nx, "ny": ny}
     if uncertainty is not None:
         arrays["uncertainty"] = uncertainty
-    arrays = {k: np.asarray(v) for k, v in arrays.items()}
-    n = len(arrays["x"]) if arrays["x"].ndim == 1 else -1
-    for k, v in arrays.items():
-        if v.ndim != 1 or len(v) != n:
-            raise EventDataError(
-                f"segment_normal_flow: '{k}' must be 1-D with the length of 'x' "
-                f"({arrays['x'].shape}), got shape {v.shape}")
-    return arrays
+    return {k: np.asarray(v) for k, v in arrays.items()}
 
 
 def _uncertainty_terms(
@@ -254,7 +248,7 @@ def prepare_window(
         from evseg.events import checked_sensor_size
 
         sensor_size = checked_sensor_size(sensor_size)
-    a = _validate(x, y, t, nx, ny, uncertainty)
+    a = _arrays(x, y, t, nx, ny, uncertainty)
     cfg = as_segmentation_config(config)
     timings = {}
     tic, cpu = time.perf_counter(), time.process_time()

@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from evseg.checks import is_int, is_whole
 from evseg.events import checked_sensor_size, validate_events
 from evseg.veckm_flow.result import NormalFlow
 
@@ -30,12 +31,17 @@ if TYPE_CHECKING:  # pragma: no cover
 
 def time_surface(events: np.ndarray, sensor_size: tuple[int, int]) -> np.ndarray:
     """Latest timestamp (us) per pixel of a slice: int64 ``(H, W)``, -1 where no event."""
-    from evseg.veckm_flow import _kernels
-
     # The compiled kernel writes per pixel without bounds checks: an event off the sensor
     # (or a swapped width and height) would corrupt memory rather than fail.
     w, h = checked_sensor_size(sensor_size)
     validate_events(events, (w, h), source="time_surface events", check_sorted=False)
+    return _latest_times(events, w, h)
+
+
+def _latest_times(events: np.ndarray, w: int, h: int) -> np.ndarray:
+    """:func:`time_surface` of events already checked to lie on the ``w`` x ``h`` sensor."""
+    from evseg.veckm_flow import _kernels
+
     pix = events["y"].astype(np.int64) * w + events["x"].astype(np.int64)
     last = _kernels.latest_per_cell(pix, w * h)
     ts = np.full(w * h, -1, np.int64)
@@ -61,7 +67,7 @@ def plane_fit_normal_flow(
 
     Args:
         events: :data:`~evseg.events.EVENT_DTYPE` ``(N,)`` sorted by ``t`` (us).
-        targets: int ``(T,)`` positions in ``events``.
+        targets: int ``(T,)`` positions in ``events``; None: every event.
         sensor_size: ``(width, height)`` px.
         radius_px: window half-width ``r``, px.
         min_points: fewer valid surface pixels -> rejected.
@@ -83,11 +89,11 @@ def plane_fit_normal_flow(
 
     w, h = checked_sensor_size(sensor_size)
     validate_events(events, (w, h), source="plane-fit normal flow events")
-    targets = _validate_targets(targets, len(events))
-    if isinstance(radius_px, (bool, np.bool_)) or int(radius_px) != radius_px or radius_px < 1:
+    targets = _validate_targets(np.arange(len(events)) if targets is None else targets, len(events))
+    if not is_whole(radius_px) or radius_px < 1:
         raise ConfigError(f"plane_fit_normal_flow: radius_px must be an integer >= 1, got {radius_px!r}")
     r = int(radius_px)
-    ts = np.pad(time_surface(events, sensor_size), r, constant_values=-1)
+    ts = np.pad(_latest_times(events, w, h), r, constant_values=-1)
     tx = events["x"][targets].astype(np.int64)
     ty = events["y"][targets].astype(np.int64)
     tt = events["t"][targets].astype(np.int64)
@@ -156,15 +162,12 @@ class PlaneFitNormalFlow:
     def __post_init__(self) -> None:
         from evseg.errors import ConfigError
 
-        def whole(v) -> bool:
-            return isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_))
-
         # radius 0 fits no plane (every flow NaN, silently); a negative one indexes backwards.
         for name, least in (("radius_px", 1), ("min_points", 4), ("refit_rounds", 0)):
             value = getattr(self, name)
-            if not whole(value) or value < least:
+            if not is_int(value) or value < least:
                 raise ConfigError(f"PlaneFitNormalFlow.{name} must be an integer >= {least}, got {value!r}")
-        if self.max_dt_us is not None and not (whole(self.max_dt_us) and self.max_dt_us > 0):
+        if self.max_dt_us is not None and not (is_int(self.max_dt_us) and self.max_dt_us > 0):
             raise ConfigError(f"PlaneFitNormalFlow.max_dt_us must be a positive integer (us) or None, "
                               f"got {self.max_dt_us!r}")
         if not self.max_rms_px > 0:
@@ -178,14 +181,10 @@ class PlaneFitNormalFlow:
         calibration: "Calibration | None" = None,
     ) -> NormalFlow:
         """Normal flow of ``targets`` (default: every event) of the slice ``events``."""
-        validate_events(events, sensor_size, source="plane-fit normal flow input")
-        if targets is None:
-            targets = np.arange(len(events), dtype=np.int64)
-        from evseg.veckm_flow.encoding import _validate_targets
-
-        targets = _validate_targets(targets, len(events))
+        # plane_fit_normal_flow checks the events and the targets, once.
         nx, ny, unc = plane_fit_normal_flow(
             events, targets, sensor_size, self.radius_px, self.min_points, self.max_dt_us, self.max_rms_px,
             refit_rounds=self.refit_rounds,
         )
-        return NormalFlow(targets, nx, ny, unc)
+        index = np.arange(len(events), dtype=np.int64) if targets is None else np.asarray(targets, dtype=np.int64)
+        return NormalFlow(index, nx, ny, unc)

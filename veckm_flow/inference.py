@@ -127,8 +127,9 @@ class OnnxNormalFlow:
         if model_path is None and not path.is_file():
             raise ModelError(f"{path}: no shipped default model in this build; pass a model_path (evseg export)")
         self.model_path = path
-        if threads is not None and (isinstance(threads, (bool, np.bool_)) or not isinstance(threads, (int, np.integer))
-                                    or threads < 1):
+        from evseg.checks import is_int
+
+        if threads is not None and (not is_int(threads) or threads < 1):
             from evseg.errors import ConfigError
 
             raise ConfigError(f"OnnxNormalFlow: threads must be an integer >= 1 or None (all cores), got {threads!r}")

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from evseg.checks import is_whole
 from evseg.errors import EventDataError
 
 
@@ -33,8 +34,7 @@ def select_targets(
 
     sensor_size = checked_sensor_size(sensor_size)
     validate_events(events, None, source="select_targets events", check_sorted=False)
-    if max_targets is not None and (isinstance(max_targets, (bool, np.bool_)) or int(max_targets) != max_targets
-                                    or max_targets < 0):
+    if max_targets is not None and (not is_whole(max_targets) or max_targets < 0):
         raise EventDataError(f"max_targets must be a non-negative integer or None, got {max_targets!r}")
     # Each coordinate on its own: with a swapped width and height the combined cell index can
     # stay in range while the cells are wrong.

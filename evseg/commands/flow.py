@@ -114,7 +114,7 @@ def run(args: argparse.Namespace) -> int:
     from evseg.flow_file import save_flow_file
     from evseg.veckm_flow import NormalFlow, select_targets
     from evseg.veckm_flow.context import flow_with_context, history_span_us, split_history
-    from evseg.windows import EventHistory, stream_time_windows
+    from evseg.windows import EventHistory, ordered_time_windows
 
     if not (math.isfinite(args.window_ms) and args.window_ms > 0):
         raise EvsegError(f"--window-ms must be a positive number, got {args.window_ms}")
@@ -172,7 +172,7 @@ def run(args: argparse.Namespace) -> int:
                 f"{args.calib or args.recording}: calibration is for {calibration.sensor_size[0]}x"
                 f"{calibration.sensor_size[1]}, the recording is {sensor_size[0]}x{sensor_size[1]}"
             )
-        windows = stream_time_windows(rec.chunks(), window_us)
+        windows = ordered_time_windows(rec.chunks(), window_us)  # the recording checks its order
         if not args.no_progress:
             from tqdm import tqdm
 

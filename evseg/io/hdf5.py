@@ -79,7 +79,6 @@ class H5Source:
             if not isinstance(d, h5py.Dataset) or not (len(d.shape) == 1 or (len(d.shape) == 2 and d.shape[1] == 1)):
                 shape = getattr(d, "shape", "a group")
                 raise FormatError(f"{where}: dataset 'events/{k}' must be one column of N values, got shape {shape}")
-        self._column = {k: len(d.shape) == 2 for k, d in self._ds.items()}
         n = {k: d.shape[0] if d.shape else -1 for k, d in self._ds.items()}
         if len(set(n.values())) != 1 or n["x"] < 0:
             raise FormatError(f"{where}: datasets events/x,y,t,p have different lengths {n}")
@@ -132,7 +131,7 @@ class H5Source:
     def _read(self, key: str, i: int, j: int) -> np.ndarray:
         """Events i..j-1 of column ``key`` as a 1-D array."""
         d = self._ds[key]
-        return d[i:j, 0] if self._column[key] else d[i:j]
+        return d[i:j, 0] if d.ndim == 2 else d[i:j]
 
     def close(self) -> None:
         try:

@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING, Callable, Iterable, Iterator, Protocol
 import numpy as np
 
 from evseg.errors import EventDataError, EvsegError, FormatError
-from evseg.events import EVENT_DTYPE, EventStream, empty_events
+from evseg.events import EVENT_DTYPE, EventStream, checked_sensor_size, empty_events
 
 if TYPE_CHECKING:  # pragma: no cover
     from evseg.calibration import Calibration
@@ -98,6 +98,7 @@ class Recording:
         self.format = source.format
         self._source = source
         self._chunk_events = int(chunk_events)
+        self._closed = False
         self._sort = bool(sort)
         if sensor_size is not None:
             self.sensor_size: tuple[int, int] | None = _check_sensor_size(sensor_size)
@@ -138,7 +139,7 @@ class Recording:
         self._closed = True
 
     def _check_open(self) -> None:
-        if getattr(self, "_closed", False):
+        if self._closed:
             raise EvsegError(f"{self.path}: the recording was closed (its with-block has ended); open it again "
                              "to read it")
 
@@ -307,12 +308,10 @@ def _concat(chunks: list[np.ndarray]) -> np.ndarray:
 
 
 def _check_sensor_size(size) -> tuple[int, int]:
-    try:
-        w, h = (int(v) for v in size)
-    except (TypeError, ValueError):
-        raise EventDataError(f"sensor_size must be (width, height), got {size!r}") from None
-    if w <= 0 or h <= 0 or w > 65536 or h > 65536:
-        raise EventDataError(f"sensor_size must be positive and at most 65536, got {size!r}")
+    """:func:`~evseg.events.checked_sensor_size` within the 16-bit coordinates of events."""
+    w, h = checked_sensor_size(size)
+    if w > 65536 or h > 65536:
+        raise EventDataError(f"sensor_size must be at most 65536 px per side (16-bit coordinates), got {size!r}")
     return (w, h)
 
 

@@ -7,6 +7,7 @@ from typing import Callable
 import cv2
 import numpy as np
 
+from evseg.checks import is_whole
 from evseg.errors import ConfigError
 from evseg.events import EVENT_DTYPE, EventStream
 from evseg.simulator.camera import PixelArray, noise_events
@@ -61,8 +62,7 @@ def simulate(
         raise ConfigError(f"simulate needs a SceneConfig or a preset name, got {type(cfg).__name__}")
     for name, value in (("seed", seed), ("duration_us", duration_us)):
         # int(1.5) would silently simulate seed 1 (and record it as 1).
-        if isinstance(value, (bool, np.bool_)) or not (isinstance(value, (int, np.integer))
-                                                       or (isinstance(value, float) and value.is_integer())):
+        if not is_whole(value):
             raise ConfigError(f"{name} must be a whole number, got {value!r}")
     seed, duration_us = int(seed), int(duration_us)
     if duration_us <= 0:
