@@ -23,6 +23,14 @@ OpenCV ``FileStorage`` layout (``%YAML:1.0``, as OpenCV's calibration sample wri
 fields of ROS ``camera_info`` with the matrices as ``!!opencv-matrix``; read with
 ``cv2.FileStorage``.
 
+One-line text layout (the RPG Event Camera Dataset's ``calib.txt``)::
+
+    fx fy cx cy k1 k2 p1 p2 k3        # or fx fy cx cy k1 k2 p1 p2, or fx fy cx cy alone
+
+radtan distortion (none with 4 numbers); separators are spaces, tabs or commas, ``#`` starts a
+comment. It holds no image size, so the recording's sensor size goes with it
+(``load_calibration(path, sensor_size=(w, h))``; the CLI passes the recording's).
+
 Distortion models: ``radtan`` (Brown-Conrady: ``[k1, k2, p1, p2(, k3)]``, or the 8
 coefficients ``[k1, k2, p1, p2, k3, k4, k5, k6]`` of ROS's ``rational_polynomial``), undistorted
 with ``cv2.undistortPoints``; ``equidistant`` (Kannala-Brandt, OpenCV's fisheye model:
@@ -317,22 +325,101 @@ def _read_opencv_filestorage(path: str) -> dict:
         fs.release()
 
 
-def load_calibration(path: str | Path, camera: str | None = None) -> Calibration:
-    """Load a calibration YAML: ROS ``camera_info`` / EMSGC style, a Kalibr camchain, or an
-    OpenCV ``FileStorage`` file of the camera_info fields.
+_TEXT_COUNTS = {4: "fx fy cx cy", 8: "fx fy cx cy k1 k2 p1 p2", 9: "fx fy cx cy k1 k2 p1 p2 k3"}
+
+
+def _text_calibration_numbers(path: str) -> list[str] | None:
+    """The fields of a one-line text calibration (ECD's ``calib.txt``), or None when the file
+    is not one (a YAML layout, unreadable, several lines, words that are not numbers)."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(4097)
+    except OSError:
+        return None  # the YAML loader reports it
+    if len(head) > 4096:
+        return None
+    try:
+        text = head.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        return None
+    lines = [line.split("#", 1)[0].strip() for line in text.splitlines()]
+    lines = [line for line in lines if line]
+    if len(lines) != 1:
+        return None
+    fields = [f for f in re.split(r"[\s,]+", lines[0]) if f]
+    try:
+        [float(f) for f in fields]
+    except ValueError:
+        return None
+    return fields
+
+
+def needs_sensor_size(path: str | Path) -> bool:
+    """True when the calibration file's layout holds no image size (the one-line text layout of
+    ECD's ``calib.txt``): :func:`load_calibration` then needs ``sensor_size``."""
+    return _text_calibration_numbers(str(path)) is not None
+
+
+def _load_text(fields: list[str], path: str, sensor_size) -> Calibration:
+    if len(fields) not in _TEXT_COUNTS:
+        raise CalibrationError(
+            f"{path}: a one-line text calibration holds {len(fields)} numbers; expected "
+            + ", ".join(f"{n} ({names})" for n, names in _TEXT_COUNTS.items()))
+    if sensor_size is None:
+        raise CalibrationError(
+            f"{path}: a one-line text calibration (fx fy cx cy k1 k2 p1 p2 k3, as ECD's calib.txt) holds no image "
+            "size: give the sensor size too (load_calibration(path, sensor_size=(width, height)); on the command "
+            "line --sensor-size WxH, unless the recording stores its size)")
+    from evseg.events import checked_sensor_size
+
+    from evseg.errors import EventDataError
+
+    try:
+        size = checked_sensor_size(sensor_size)
+    except EventDataError as exc:
+        raise CalibrationError(f"{path}: {exc}") from None
+    fx, fy, cx, cy, *D = (float(f) for f in fields)
+    if not all(np.isfinite(v) for v in (fx, fy, cx, cy, *D)):
+        raise CalibrationError(f"{path}: the calibration line contains NaN or inf: {' '.join(fields)}")
+    K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+    return _checked(K, np.asarray(D) if D else np.zeros(4), size, "radtan", path)
+
+
+def load_calibration(path: str | Path, camera: str | None = None,
+                     sensor_size: tuple[int, int] | None = None) -> Calibration:
+    """Load a calibration file: ROS ``camera_info`` / EMSGC style YAML, a Kalibr camchain, an
+    OpenCV ``FileStorage`` file of the camera_info fields, or ECD's one-line ``calib.txt``.
 
     Args:
-        path: the YAML file (layouts in the module docstring; the layout is recognised from
-            its fields).
+        path: the file (layouts in the module docstring; the layout is recognised from its
+            contents, not its name).
         camera: which camera block of a Kalibr camchain (``'cam0'``, ``'cam1'``, ...); needed
             only when the camchain holds several cameras.
+        sensor_size: ``(width, height)`` in px, for a layout that holds no image size (the
+            one-line text layout, :func:`needs_sensor_size`); the layouts that hold one ignore
+            it (callers compare the two: :class:`~evseg.pipeline.MotionSegmentationPipeline`
+            refuses a calibration of another size).
 
     Raises :class:`CalibrationError` naming the file and field when something is missing or
     has the wrong number of entries.
+
+    Example (ECD's ``calib.txt`` of the DAVIS240C):
+        >>> import tempfile, os
+        >>> path = os.path.join(tempfile.mkdtemp(), "calib.txt")
+        >>> _ = open(path, "w").write("199.092 198.829 132.192 110.713 -0.368 0.151 -0.0003 -0.0008 0\\n")
+        >>> cal = load_calibration(path, sensor_size=(240, 180))
+        >>> cal.K[0].tolist(), cal.D.size, cal.sensor_size
+        ([199.092, 0.0, 132.192], 5, (240, 180))
     """
     import yaml
 
     path = str(path)
+    fields = _text_calibration_numbers(path)
+    if fields is not None:
+        if camera is not None:
+            raise CalibrationError(f"{path}: camera '{camera}' asked for, but the file is a single-camera "
+                                   "one-line text calibration, not a Kalibr camchain")
+        return _load_text(fields, path, sensor_size)
     if _is_opencv_filestorage(path):
         doc = _read_opencv_filestorage(path)
         if camera is not None:
@@ -354,8 +441,8 @@ def load_calibration(path: str | Path, camera: str | None = None) -> Calibration
         raise CalibrationError(
             f"{path}: expected a mapping of calibration fields, got {type(doc).__name__}; the layouts read are ROS "
             "camera_info (image_width, image_height, camera_matrix, distortion_model, distortion_coefficients), "
-            "a Kalibr camchain (cam0: intrinsics, resolution, ...) and OpenCV FileStorage YAML (a one-line "
-            "'fx fy cx cy k1 k2 p1 p2 k3' such as the ECD datasets' calib.txt needs writing as one of them)")
+            "a Kalibr camchain (cam0: intrinsics, resolution, ...), OpenCV FileStorage YAML and a one-line "
+            "'fx fy cx cy k1 k2 p1 p2 k3' (ECD's calib.txt)")
     blocks = [k for k, v in doc.items() if isinstance(k, str) and _KALIBR_CAMERA.match(k) and isinstance(v, dict)]
     if blocks and not _kalibr_cameras(doc):
         raise CalibrationError(f"{path}: Kalibr camchain block '{blocks[0]}' has no field 'intrinsics' "

@@ -292,7 +292,7 @@ class MotionSegmentationPipeline:
         if isinstance(calibration, (str, Path)):
             from evseg.calibration import load_calibration
 
-            calibration = load_calibration(calibration)
+            calibration = load_calibration(calibration, sensor_size=sensor_size)
         elif calibration is not None and not isinstance(calibration, Calibration):
             raise ConfigError(f"MotionSegmentationPipeline: calibration must be a Calibration or a calibration file, "
                               f"got {type(calibration).__name__}")

@@ -200,7 +200,7 @@ def run_segment_job(job: SegmentJob) -> str:
     """Run the job; returns a one-paragraph summary for the terminal."""
     from tqdm import tqdm
 
-    from evseg.calibration import load_calibration
+    from evseg.calibration import load_calibration, needs_sensor_size
     from evseg.io import open_recording
     from evseg.io.recording import parse_sensor_size
     from evseg.overlay import VideoSink, label_overlay
@@ -212,8 +212,10 @@ def run_segment_job(job: SegmentJob) -> str:
     if job.calib_camera is not None and job.calib is None:
         raise ConfigError(f"--calib-camera {job.calib_camera} names a camera of a calibration file: give --calib too")
     check_job_outputs(job)
-    calibration = load_calibration(job.calib, job.calib_camera) if job.calib is not None else None
     sensor_size = parse_sensor_size(job.sensor_size) if isinstance(job.sensor_size, str) else job.sensor_size
+    # ECD's one-line calib.txt holds no image size: it is read once the recording's is known.
+    calibration = (load_calibration(job.calib, job.calib_camera)
+                   if job.calib is not None and not needs_sensor_size(job.calib) else None)
     with open_recording(job.recording, format=job.format, topic=job.topic, sensor_size=sensor_size,
                         sort=job.sort, time_unit=job.time_unit) as rec:
         inferred = ""
@@ -229,6 +231,8 @@ def run_segment_job(job: SegmentJob) -> str:
                 raise ConfigError(f"{job.recording}: no events, and no --sensor-size given")
             inferred = (f"; sensor size {rec.sensor_size[0]}x{rec.sensor_size[1]} inferred from the events "
                         "(pass --sensor-size WxH if the sensor is larger)")
+        if job.calib is not None and calibration is None:
+            calibration = load_calibration(job.calib, job.calib_camera, sensor_size=rec.sensor_size)
         if calibration is None:
             rec.require_usable_calibration()
             calibration = rec.calibration

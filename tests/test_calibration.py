@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from evseg.calibration import Calibration, load_calibration
+from evseg.calibration import Calibration, load_calibration, needs_sensor_size
 from evseg.errors import CalibrationError
 
 YAML = """image_width: 240
@@ -240,7 +240,7 @@ def test_opencv_filestorage_yaml(tmp_path, header):
 
 
 @pytest.mark.parametrize("text, message", [
-    ("199.0 199.0 120 90 -0.3 0.1 0 0 0\n", r"expected a mapping of calibration fields, got str; the layouts read"),
+    ("just some words\n", r"expected a mapping of calibration fields, got str; the layouts read"),
     ("cam0:\n  resolution: [240, 180]\n", r"Kalibr camchain block 'cam0' has no field 'intrinsics'"),
 ])
 def test_other_layouts_say_which_layouts_are_read(tmp_path, text, message):
@@ -248,3 +248,41 @@ def test_other_layouts_say_which_layouts_are_read(tmp_path, text, message):
     p.write_text(text)
     with pytest.raises(CalibrationError, match=message):
         load_calibration(p)
+
+
+def test_ecd_one_line_text_calibration(tmp_path):
+    # ECD's calib.txt of the DAVIS240C: fx fy cx cy k1 k2 p1 p2 k3, one line, no image size.
+    p = tmp_path / "calib.txt"
+    p.write_text("199.092 198.829 132.192 110.713 -0.368436311798 0.150947243557 -0.000296130534385 "
+                 "-0.000759431726241 0.0\n")
+    assert needs_sensor_size(p) and not needs_sensor_size(tmp_path / "missing.txt")
+    cal = load_calibration(p, sensor_size=(240, 180))
+    np.testing.assert_array_equal(cal.K, [[199.092, 0, 132.192], [0, 198.829, 110.713], [0, 0, 1]])
+    np.testing.assert_array_equal(cal.D, [-0.368436311798, 0.150947243557, -0.000296130534385,
+                                          -0.000759431726241, 0.0])
+    assert cal.model == "radtan" and cal.sensor_size == (240, 180)
+    # The same numbers as a ROS camera_info YAML undistort alike.
+    yaml_cal = load_calibration(_write(tmp_path / "c.yaml", YAML))
+    x, y = np.array([5.0, 230.0]), np.array([7.0, 170.0])
+    np.testing.assert_allclose(cal.undistort(x, y), yaml_cal.undistort(x, y), atol=0.05)  # D differs in digits
+    # Commas, a comment line and 4 numbers (no distortion) are read too.
+    q = _write(tmp_path / "k.txt", "# fx fy cx cy\n200, 200, 120, 90\n")
+    assert not np.any(load_calibration(q, sensor_size=(240, 180)).D)
+
+
+@pytest.mark.parametrize("text, size, message", [
+    ("199 199 120 90 -0.3 0.1 0 0 0\n", None, r"calib.txt: a one-line text calibration .* holds no image size: "
+     r"give the sensor size too"),
+    ("199 199 120 90 -0.3 0.1\n", (240, 180), r"holds 6 numbers; expected 4 \(fx fy cx cy\), 8 .*, 9"),
+    ("199 199 300 90\n", (240, 180), r"calib.txt: principal point .* outside the 240x180 sensor"),
+    ("199 199 120 90\n", (240.5, 180), r"calib.txt: sensor_size must be \(width, height\) in whole pixels"),
+    ("199 nan 120 90\n", (240, 180), r"calib.txt: the calibration line contains NaN or inf"),
+])
+def test_bad_one_line_text_calibration_names_the_problem(tmp_path, text, size, message):
+    with pytest.raises(CalibrationError, match=message):
+        load_calibration(_write(tmp_path / "calib.txt", text), sensor_size=size)
+
+
+def _write(path, text):
+    path.write_text(text)
+    return path

@@ -104,7 +104,7 @@ def _estimator(args: argparse.Namespace):
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from evseg.calibration import load_calibration
+    from evseg.calibration import load_calibration, needs_sensor_size
     from evseg.errors import EvsegError
 
     if args.flow_method == "learned" and args.baseline:
@@ -154,7 +154,9 @@ def run(args: argparse.Namespace) -> int:
     frames: list[tuple[np.ndarray, NormalFlow]] = []
     with open_recording(args.recording, format=args.format, topic=args.topic, sensor_size=sensor,
                         sort=args.sort, time_unit=args.time_unit) as rec:
-        user_calibration = load_calibration(args.calib, args.calib_camera) if args.calib is not None else None
+        # ECD's one-line calib.txt holds no image size: it is read once the recording's is known.
+        user_calibration = (load_calibration(args.calib, args.calib_camera)
+                            if args.calib is not None and not needs_sensor_size(args.calib) else None)
         if user_calibration is not None:
             rec.assume_sensor_size(user_calibration.sensor_size, "calibration")
         if rec.sensor_size is None:
@@ -164,6 +166,8 @@ def run(args: argparse.Namespace) -> int:
             if rec.sensor_size is None:
                 raise EvsegError(f"{args.recording}: no events, and no --sensor-size given")
         sensor_size = rec.sensor_size
+        if args.calib is not None and user_calibration is None:
+            user_calibration = load_calibration(args.calib, args.calib_camera, sensor_size=sensor_size)
         if user_calibration is None:
             rec.require_usable_calibration()
         calibration = user_calibration if user_calibration is not None else rec.calibration

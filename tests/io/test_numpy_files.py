@@ -176,3 +176,37 @@ def test_write_npz_needs_the_npz_extension(tmp_path):
     with pytest.raises(FormatError, match=r"e.bin: an .npz recording must be named \*.npz"):
         write_npz(EventStream(sample_events(5), (64, 48)), tmp_path / "e.bin")
     assert not (tmp_path / "e.bin").exists()
+
+
+def test_ecd_layout_events_txt_with_its_one_line_calib_txt(tmp_path, capsys):
+    # ECD ships events.txt (t in s, x, y, p) and calib.txt (fx fy cx cy k1 k2 p1 p2 k3) without
+    # an image size: the CLI reads the calibration at the size the user gives, and it must act
+    # exactly as the same numbers in a camera_info YAML.
+    from evseg.cli import main
+
+    ev = sample_events(300)
+    lines = "".join(f"{t / 1e6:.6f} {x} {y} {int(p > 0)}\n" for t, x, y, p in ev[["t", "x", "y", "p"]])
+    (tmp_path / "events.txt").write_text(lines)
+    (tmp_path / "calib.txt").write_text("60 61 40 30 -0.2 0.05 0.001 -0.002 0\n")
+    (tmp_path / "c.yaml").write_text(
+        "image_width: 80\nimage_height: 60\ncamera_matrix: {data: [60, 0, 40, 0, 61, 30, 0, 0, 1]}\n"
+        "distortion_model: plumb_bob\ndistortion_coefficients: {data: [-0.2, 0.05, 0.001, -0.002, 0]}\n")
+    flows = {}
+    for calib in ("calib.txt", "c.yaml"):
+        out = tmp_path / f"{calib}.npz"
+        rc = main(["flow", str(tmp_path / "events.txt"), "--calib", str(tmp_path / calib), "--sensor-size", "80x60",
+                   "--out", str(out), "--baseline", "--no-progress"])
+        assert rc == 0, capsys.readouterr().err
+        flows[calib] = np.load(out)
+        rc = main(["segment", str(tmp_path / "events.txt"), "--calib", str(tmp_path / calib), "--sensor-size",
+                   "80x60", "--out", str(tmp_path / f"seg_{calib}.npz"), "--flow-method", "planefit", "--no-progress"])
+        assert rc == 0, capsys.readouterr().err
+    for key in ("index", "nx", "ny"):
+        np.testing.assert_array_equal(flows["calib.txt"][key], flows["c.yaml"][key])
+    np.testing.assert_array_equal(np.load(tmp_path / "seg_calib.txt.npz")["label"],
+                                  np.load(tmp_path / "seg_c.yaml.npz")["label"])
+    # Without calibration the flows differ: the calibration was applied.
+    rc = main(["flow", str(tmp_path / "events.txt"), "--sensor-size", "80x60", "--out", str(tmp_path / "raw.npz"),
+               "--baseline", "--no-progress"])
+    assert rc == 0
+    assert not np.array_equal(np.load(tmp_path / "raw.npz")["nx"], flows["c.yaml"]["nx"])
