@@ -22,9 +22,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--topic", default=None, help="ROS bag topic of the event messages (default: the only one)")
     p.add_argument("--sensor-size", default=None, metavar="WxH",
                    help="sensor size in px, e.g. 346x260 (overrides the file's)")
-    p.add_argument("--time-unit", choices=["s", "us"], default=None,
-                   help="text/csv only: unit of the time column (default: s if any of the first 1,000 times has a decimal "
-                        "point or exponent, else us)")
+    p.add_argument("--time-unit", choices=["s", "ms", "us", "ns"], default=None,
+                   help="text/csv, .npy and .npz only: unit of the time column (default: its name's suffix, e.g. t_ns; "
+                        "else for text s if any of the first 1,000 times has a decimal point or exponent, else us; for "
+                        "arrays s when floating point, us when integer)")
     p.add_argument("--sort", action="store_true",
                    help="accept unsorted timestamps and sort them (loads the whole recording)")
 

@@ -26,9 +26,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sensor-size", default=None, help="WIDTHxHEIGHT when the file has none")
     p.add_argument("--sort", action="store_true",
                    help="sort events by time first (loads the whole recording; for files whose time goes back)")
-    p.add_argument("--time-unit", choices=["s", "us"], default=None,
-                   help="text/csv only: unit of the time column (default: s if any of the first 1,000 times has a decimal "
-                        "point or exponent, else us)")
+    p.add_argument("--time-unit", choices=["s", "ms", "us", "ns"], default=None,
+                   help="text/csv, .npy and .npz only: unit of the time column (default: its name's suffix, e.g. t_ns; "
+                        "else for text s if any of the first 1,000 times has a decimal point or exponent, else us; for "
+                        "arrays s when floating point, us when integer)")
     p.add_argument("--calib", type=Path, default=None,
                    help="calibration YAML (ROS camera_info / EMSGC, or a Kalibr camchain)")
     p.add_argument("--calib-camera", default=None, metavar="NAME",

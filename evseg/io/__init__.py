@@ -66,9 +66,12 @@ def open_recording(
             AEDAT4 cut at message/packet boundaries; EVT3 reads this many 16-bit words, which
             decode to fewer events except in dense vector bursts).
         sort: accept unsorted timestamps and sort them (loads the whole recording).
-        time_unit: text/csv only: ``"s"`` or ``"us"`` for the time column (default: seconds
-            when any of the first 1,000 time values has a decimal point or exponent, else
-            microseconds, and then a later time with a fraction is an error).
+        time_unit: text/csv, .npy and .npz only: ``"s"``, ``"ms"``, ``"us"`` or ``"ns"`` for
+            the time column, whatever its name or dtype says. Default: a unit suffix of the
+            column's name (``t_ns``, ``timestamp_us``, ...), else for text seconds when any of
+            the first 1,000 time values has a decimal point or exponent, else microseconds (and
+            then a later time with a fraction is an error); for arrays seconds when floating
+            point, microseconds when integer.
     """
     from evseg.io.registry import open_source
 
@@ -80,8 +83,9 @@ def open_recording(
             raise EvsegError(f"{path}: a topic only applies to ROS bags, this file is {fmt}")
         options["topic"] = topic
     if time_unit is not None:
-        if fmt != "text":
-            raise EvsegError(f"{path}: a time unit only applies to text/csv files, this file is {fmt}")
+        if fmt not in ("text", "npy", "npz"):
+            raise EvsegError(f"{path}: a time unit only applies to text/csv, .npy and .npz files (the other "
+                             f"formats define theirs), this file is {fmt}")
         options["time_unit"] = time_unit
     source = open_source(path, fmt, **options)
     try:

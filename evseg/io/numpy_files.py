@@ -36,8 +36,12 @@ from evseg.events import EVENT_DTYPE, EventStream
 from evseg.io._atomic import atomic_path
 from evseg.io.recording import Chunk
 
-TIME_NAMES = ("t", "ts", "timestamp", "time", "t_us", "ts_us", "timestamp_us", "time_us", "t_s", "ts_s",
-              "timestamp_s", "time_s")
+US_PER_TIME_UNIT = {"s": 1e6, "ms": 1e3, "us": 1.0, "ns": 1e-3}
+"""Microseconds per unit of the time units the readers take (``time_unit=``, ``--time-unit``)."""
+
+_TIME_BASES = ("t", "ts", "timestamp", "time")
+TIME_NAMES = _TIME_BASES + tuple(f"{b}_{u}" for b in _TIME_BASES for u in US_PER_TIME_UNIT)
+"""Names of the time column, in order of preference; a unit suffix sets the unit (:func:`time_unit_of`)."""
 POLARITY_NAMES = ("p", "pol", "polarity", "on")
 
 
@@ -57,12 +61,43 @@ def _field_names(a: np.ndarray) -> list[str]:
 
 
 def time_unit_of(name: str) -> str | None:
-    """``"us"`` / ``"s"`` for a time column named with that suffix, else None (decided by dtype).
+    """The unit of a time column named with a unit suffix (``_s``, ``_ms``, ``_us``, ``_ns``),
+    else None (decided by dtype).
 
-    >>> time_unit_of("timestamp_us"), time_unit_of("t_s"), time_unit_of("t")
-    ('us', 's', None)
+    >>> time_unit_of("timestamp_us"), time_unit_of("t_s"), time_unit_of("t_ns"), time_unit_of("t")
+    ('us', 's', 'ns', None)
     """
-    return "us" if name.endswith("_us") else "s" if name.endswith("_s") else None
+    for unit in US_PER_TIME_UNIT:
+        if name.endswith("_" + unit):
+            return unit
+    return None
+
+
+LATEST_PLAUSIBLE_US = 4_102_444_800_000_000
+"""2100-01-01 in microseconds since the Unix epoch. A time read beyond it (absolute or relative)
+is in another unit than the one assumed: epoch nanoseconds read as microseconds, epoch
+milliseconds read as seconds."""
+
+
+def implausible_time_problem(t_us: np.ndarray, t: np.ndarray, unit: str, where: str, first: str) -> str | None:
+    """The message for the first time of ``t_us`` (us, converted from ``t`` read as ``unit``)
+    beyond :data:`LATEST_PLAUSIBLE_US`, or None. ``first`` names its position (``event 12``)."""
+    if not len(t_us):
+        return None
+    bad = np.flatnonzero(np.abs(t_us) > LATEST_PLAUSIBLE_US)
+    if not len(bad):
+        return None
+    i = int(bad[0])
+    others = "/".join(u for u in US_PER_TIME_UNIT if u != unit)
+    return (f"{where}: field 't' = {t[i]} at {first(i)} read as {unit} is after the year 2100: the times are in "
+            f"another unit; give it (--time-unit {others}, time_unit=..., or a unit suffix such as t_ns)")
+
+
+def check_time_unit(time_unit: str | None, where: str) -> None:
+    """Raise :class:`FormatError` unless ``time_unit`` is None or one of :data:`US_PER_TIME_UNIT`."""
+    if time_unit is not None and time_unit not in US_PER_TIME_UNIT:
+        raise FormatError(f"{where}: time_unit must be one of {', '.join(map(repr, US_PER_TIME_UNIT))}, "
+                          f"got {time_unit!r}")
 
 
 def columns_to_events(
@@ -71,8 +106,8 @@ def columns_to_events(
 ) -> np.ndarray:
     """Convert decoded columns to :data:`EVENT_DTYPE`, checking values.
 
-    ``t`` is in ``time_unit`` (``"us"``, rounded to whole microseconds, or ``"s"``); None:
-    microseconds when integer, seconds when floating point. Raises
+    ``t`` is in ``time_unit`` (a key of :data:`US_PER_TIME_UNIT`; converted to microseconds and
+    rounded to whole ones); None: microseconds when integer, seconds when floating point. Raises
     :class:`FormatError` naming ``where`` and the event index of the first NaN/inf,
     non-integer or negative coordinate, or polarity outside {0, 1, -1, True, False}.
     """
@@ -105,18 +140,24 @@ def columns_to_events(
             i = int(bad[0])
             raise FormatError(f"{where}: field 'p' = {p[i]} at event {first_index + i} is not 0, 1 or -1")
     t = cols["t"]
-    seconds = time_unit == "s" or (time_unit is None and t.dtype.kind == "f")
-    if seconds or t.dtype.kind == "f":
-        t_us = t.astype(np.float64) * (1e6 if seconds else 1.0)
+    unit = time_unit if time_unit is not None else "s" if t.dtype.kind == "f" else "us"
+    if t.dtype.kind == "u" and len(t) and int(t.max()) > 2**63 - 1:
+        i = int(np.argmax(t))
+        raise FormatError(f"{where}: field 't' = {t[i]} at event {first_index + i} is out of range")
+    if t.dtype.kind in "iub" and unit == "us":
+        t_us = t
+    elif t.dtype.kind in "iub" and unit == "ns":
+        t_us = (t.astype(np.int64) + 500) // 1000  # exact: float64 would round epoch nanoseconds
+    else:
+        t_us = t.astype(np.float64) * US_PER_TIME_UNIT[unit]
         bad = np.flatnonzero(np.abs(t_us) > 2**62)
         if len(bad):
             i = int(bad[0])
             raise FormatError(f"{where}: field 't' = {t[i]} at event {first_index + i} is out of range")
-    elif t.dtype.kind == "u" and len(t) and int(t.max()) > 2**63 - 1:
-        i = int(np.argmax(t))
-        raise FormatError(f"{where}: field 't' = {t[i]} at event {first_index + i} is out of range")
-    else:
-        t_us = t
+    if time_unit is None:  # a guess from the dtype: check it
+        problem = implausible_time_problem(t_us, t, unit, where, lambda i: f"event {first_index + i}")
+        if problem:
+            raise FormatError(problem)
     ev = np.empty(len(t), dtype=EVENT_DTYPE)
     ev["t"] = np.rint(t_us) if t_us.dtype.kind == "f" else t_us
     ev["x"] = cols["x"]
@@ -131,7 +172,7 @@ class ArraySource:
     def __init__(self, path: Path, format: str, get_columns, n: int, sensor_size=None,
                  t_offset_us: int = 0, calibration_KD=None, time_unit: str | None = None) -> None:
         self.path = path
-        self.time_unit = time_unit  # from the time column's name; None: by dtype
+        self.time_unit = time_unit  # the user's, else from the time column's name; None: by dtype
         self.format = format
         self.sensor_size = sensor_size
         self.t_offset_us = int(t_offset_us)
@@ -274,13 +315,20 @@ def _open_npz(path: Path, where: str) -> ArraySource:
     return ArraySource(path, "npz", get, n, sensor_size, t_offset, kd, getattr(get, "time_unit", None))
 
 
-def open_source(path: Path, format: str) -> ArraySource:
+def open_source(path: Path, format: str, time_unit: str | None = None) -> ArraySource:
+    """Open an .npy / .npz recording; ``time_unit`` (a key of :data:`US_PER_TIME_UNIT`), when
+    given, is the unit of the time column whatever its name or dtype says."""
     where = f"{path}: {format}"
+    check_time_unit(time_unit, where)
     if format == "npz":
-        return _open_npz(path, where)
-    a = _load_npy(path, where)
-    get = _array_getter(a, where)
-    return ArraySource(path, "npy", get, len(a) if a.ndim else 0, time_unit=getattr(get, "time_unit", None))
+        source = _open_npz(path, where)
+    else:
+        a = _load_npy(path, where)
+        get = _array_getter(a, where)
+        source = ArraySource(path, "npy", get, len(a) if a.ndim else 0, time_unit=getattr(get, "time_unit", None))
+    if time_unit is not None:
+        source.time_unit = time_unit
+    return source
 
 
 def write_npz_chunks(

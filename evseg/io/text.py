@@ -5,15 +5,16 @@ Layout:
 * optional comment lines starting with ``#`` or ``%`` and blank lines (skipped everywhere);
 * optional first line ``width height`` (two integers): the sensor size;
 * optional csv header naming the columns (``t``/``ts``/``timestamp``/``time``, ``x``, ``y``,
-  ``p``/``pol``/``polarity``/``on``; a ``_us`` or ``_s`` suffix on the time column sets its
-  unit); without a header the columns are ``t x y p``;
+  ``p``/``pol``/``polarity``/``on``; a ``_s``, ``_ms``, ``_us`` or ``_ns`` suffix on the time
+  column sets its unit); without a header the columns are ``t x y p``;
 * one event per line, separated by whitespace, commas or semicolons (decided by the first data
   line). Spreadsheet and pandas exports read as they are: a UTF-8 byte-order mark, quoted
   header names, a trailing separator, and columns the header leaves unnamed (pandas' index)
   or names otherwise (ignored).
 
 Time unit: seconds when any of the first 1,000 time values has a decimal point or exponent,
-microseconds otherwise (``time_unit=`` or a ``_us`` / ``_s`` header suffix overrides). A guess
+microseconds otherwise (``time_unit=`` ``"s"``, ``"ms"``, ``"us"`` or ``"ns"``, or a header
+suffix, overrides). A guess
 of microseconds that a later line contradicts (a time with a fraction) is an error naming the
 line, never a silent rounding. Seconds are converted with ``rint(t * 1e6)``, exact to the
 microsecond for ``|t| < 2**31`` s (float64 keeps 0.25 us there). Polarity 0/-1 is OFF.
@@ -34,11 +35,12 @@ import numpy as np
 from evseg.errors import FormatError
 from evseg.events import EVENT_DTYPE, EventStream
 from evseg.io._atomic import atomic_path
+from evseg.io.numpy_files import (TIME_NAMES, US_PER_TIME_UNIT, check_time_unit, implausible_time_problem,
+                                  time_unit_of)
 from evseg.io.recording import Chunk
 
 _ALIASES = {
-    "t": ("t", "ts", "timestamp", "time", "t_us", "ts_us", "timestamp_us", "time_us", "t_s",
-          "timestamp_s", "time_s"),
+    "t": TIME_NAMES,
     "x": ("x",),
     "y": ("y",),
     "p": ("p", "pol", "polarity", "on"),
@@ -84,8 +86,7 @@ class TextSource:
     format = "text"
 
     def __init__(self, path: Path, format: str = "text", time_unit: str | None = None) -> None:
-        if time_unit not in (None, "s", "us"):
-            raise FormatError(f"{path}: time_unit must be 's' or 'us', got {time_unit!r}")
+        check_time_unit(time_unit, f"{path}: text")
         self.path = path
         self.calibration = None
         self.t_offset_us = 0
@@ -97,6 +98,7 @@ class TextSource:
         self._strip_trailing: bytes | None = None  # a separator every line ends with (header "t,x,y,p,")
         self._unit = time_unit
         self._unit_guessed = False  # microseconds guessed from the first lines: checked on every line
+        self._unit_inferred = False  # the unit was guessed (not given, no suffix): times beyond 2100 refused
         self._data_start = 0  # number of lines before the first data line
         self._scan_header()
 
@@ -148,6 +150,7 @@ class TextSource:
             seconds = any(_has_fraction_syntax(_split(ln, self._delimiter), self._columns[0]) for _, ln in sample)
             self._unit = "s" if seconds else "us"
             self._unit_guessed = not seconds
+            self._unit_inferred = True
 
     def _parse_column_names(self, n: int, line: bytes) -> None:
         try:
@@ -176,11 +179,8 @@ class TextSource:
                 )
             cols.append(hits[0])
         self._columns, self._ncols = cols, len(names)
-        tname = names[cols[0]]
-        if self._unit is None and tname.endswith("_us"):
-            self._unit = "us"
-        elif self._unit is None and tname.endswith("_s"):
-            self._unit = "s"
+        if self._unit is None:
+            self._unit = time_unit_of(names[cols[0]])
 
     def chunks(self, chunk_events: int) -> Iterator[Chunk]:
         lines = self._lines()
@@ -238,11 +238,15 @@ class TextSource:
                     f"{_UNIT_SAMPLE_LINES} times are whole numbers, so the time unit was taken as microseconds; "
                     "pass --time-unit s (time_unit='s') if the times are seconds, --time-unit us to round them"
                 )
-        t_us = t * 1e6 if self._unit == "s" else t
+        t_us = t * US_PER_TIME_UNIT[self._unit] if self._unit != "us" else t
         bad = np.flatnonzero(np.abs(t_us) > 2**62)
         if len(bad):
             i = int(bad[0])
             raise FormatError(f"{self._where}: line {numbers[i]}: field 't' = {t[i]} is out of range")
+        if self._unit_inferred:
+            problem = implausible_time_problem(t_us, t, self._unit, self._where, lambda i: f"line {numbers[i]}")
+            if problem:
+                raise FormatError(problem)
         ev = np.empty(len(a), dtype=EVENT_DTYPE)
         ev["t"] = np.rint(t_us).astype(np.int64)
         ev["x"] = x

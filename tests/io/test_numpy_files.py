@@ -130,6 +130,24 @@ def test_a_unit_suffix_on_the_time_name_decides_the_unit(tmp_path):
         assert rec.read_all().events["t"].tolist() == [7, 9]
 
 
+def test_nanoseconds_and_milliseconds_by_suffix_or_time_unit(tmp_path):
+    # Epoch nanoseconds (as ROS and many loggers write them) become microseconds exactly,
+    # rounded half up; read as microseconds they would stretch the recording 1000x silently.
+    x, y, p = np.array([1, 2, 3]), np.array([3, 4, 5]), np.array([1, 0, 1])
+    t_ns = np.array([1_700_000_000_000_000_000, 1_700_000_000_001_000_499, 1_700_000_000_002_000_500])
+    expected = [1_700_000_000_000_000, 1_700_000_000_001_000, 1_700_000_000_002_001]
+    np.savez(tmp_path / "ns.npz", t_ns=t_ns, x=x, y=y, p=p)
+    assert read_events(tmp_path / "ns.npz").events["t"].tolist() == expected
+    np.savez(tmp_path / "plain.npz", t=t_ns, x=x, y=y, p=p)
+    assert read_events(tmp_path / "plain.npz", time_unit="ns").events["t"].tolist() == expected
+    with open_recording(tmp_path / "plain.npz", time_unit="ns") as rec:
+        assert rec.time_span_us() == (expected[0], expected[-1])
+    np.save(tmp_path / "ms.npy", np.stack([np.array([1.5, 2.25, 3.0]), x, y, p], 1))
+    assert read_events(tmp_path / "ms.npy", time_unit="ms").events["t"].tolist() == [1500, 2250, 3000]
+    with pytest.raises(FormatError, match=r"ms.npy: npy: time_unit must be one of 's', 'ms', 'us', 'ns', got 'min'"):
+        read_events(tmp_path / "ms.npy", time_unit="min")
+
+
 def test_a_stored_calibration_takes_the_size_the_user_gives(tmp_path):
     # K, D without a sensor size: the reader sizes them as max + 1 of the events, which is
     # smaller than the sensor; --sensor-size must size the calibration too, not be refused.
@@ -210,3 +228,21 @@ def test_ecd_layout_events_txt_with_its_one_line_calib_txt(tmp_path, capsys):
                "--baseline", "--no-progress"])
     assert rc == 0
     assert not np.array_equal(np.load(tmp_path / "raw.npz")["nx"], flows["c.yaml"]["nx"])
+
+
+def test_times_beyond_2100_under_a_guessed_unit_ask_for_the_unit(tmp_path):
+    # Integer epoch nanoseconds under a plain 't' would read as microseconds 54,000 years
+    # away; epoch milliseconds as floats would read as seconds. Both are refused with the fix.
+    x, y, p = np.array([1, 2]), np.array([3, 4]), np.array([1, 0])
+    np.savez(tmp_path / "ns.npz", t=np.array([1_700_000_000_000_000_000, 1_700_000_000_000_001_000]), x=x, y=y, p=p)
+    with pytest.raises(FormatError, match=r"ns.npz: npz: field 't' = 1700000000000000000 at event 0 read as us is "
+                                          r"after the year 2100: .* \(--time-unit s/ms/ns"):
+        read_events(tmp_path / "ns.npz")
+    np.savez(tmp_path / "ms.npz", t=np.array([1.7e12, 1.7e12 + 1]), x=x, y=y, p=p)
+    with pytest.raises(FormatError, match=r"read as s is after the year 2100"):
+        read_events(tmp_path / "ms.npz")
+    assert read_events(tmp_path / "ms.npz", time_unit="ms").events["t"].tolist() == [1_700_000_000_000_000,
+                                                                                      1_700_000_000_001_000]
+    # Epoch microseconds and seconds of today are plausible.
+    np.savez(tmp_path / "us.npz", t=np.array([1_700_000_000_000_000]), x=x[:1], y=y[:1], p=p[:1])
+    assert read_events(tmp_path / "us.npz").events["t"].tolist() == [1_700_000_000_000_000]

@@ -53,6 +53,10 @@ def test_time_unit_from_header_suffix_and_override(tmp_path):
     q = _write(tmp_path, "f.txt", "1 1 1 1\n2 1 1 0\n")
     assert read_events(q).events["t"].tolist() == [1, 2]
     assert read_events(q, time_unit="s").events["t"].tolist() == [1_000_000, 2_000_000]
+    r = _write(tmp_path, "g.csv", "t_ns,x,y,p\n1000499,1,1,1\n2000500,1,1,0\n")
+    assert read_events(r).events["t"].tolist() == [1000, 2000]  # rint: half to even
+    assert read_events(q, time_unit="ms").events["t"].tolist() == [1000, 2000]
+    assert read_events(q, time_unit="ns").events["t"].tolist() == [0, 0]
 
 
 def test_ros_epoch_seconds_are_exact_to_the_microsecond(tmp_path):
@@ -208,3 +212,11 @@ def test_spreadsheet_and_pandas_exports(tmp_path, name, text):
     ev = read_events(p).events
     assert ev["t"].tolist() == [100000, 200000] and ev["x"].tolist() == [1, 3]
     assert ev["y"].tolist() == [2, 4] and ev["p"].tolist() == [1, -1]
+
+
+def test_times_beyond_2100_under_a_guessed_unit_ask_for_the_unit(tmp_path):
+    p = _write(tmp_path, "ns.txt", "1700000000000000000 1 1 0\n1700000000001000000 2 1 1\n")
+    with pytest.raises(FormatError, match=r"ns.txt: text: field 't' = 1.7e\+18 at line 1 read as us is after the "
+                                          r"year 2100"):
+        read_events(p)
+    assert read_events(p, time_unit="ns").events["t"].tolist() == [1_700_000_000_000_000, 1_700_000_000_001_000]
