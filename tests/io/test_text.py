@@ -220,3 +220,26 @@ def test_times_beyond_2100_under_a_guessed_unit_ask_for_the_unit(tmp_path):
                                           r"year 2100"):
         read_events(p)
     assert read_events(p, time_unit="ns").events["t"].tolist() == [1_700_000_000_000_000, 1_700_000_000_001_000]
+
+
+def test_a_boolean_polarity_column_as_pandas_writes_it(tmp_path):
+    # DataFrame.to_csv writes a bool column as True/False.
+    p = _write(tmp_path, "b.csv", ",t,x,y,p\n0,0.1,1,2,True\n1,0.2,3,4,False\n2,0.3,5,6,true\n")
+    s = read_events(p)
+    assert s.events["p"].tolist() == [1, -1, 1] and s.events["x"].tolist() == [1, 3, 5]
+    q = _write(tmp_path, "h.txt", "0.1 1 2 FALSE\n0.2 3 4 TRUE\n")  # no header either
+    assert read_events(q).events["p"].tolist() == [-1, 1]
+    # True elsewhere than the polarity column is still an error naming it.
+    r = _write(tmp_path, "x.csv", "t,x,y,p\n0.1,1,2,1\n0.2,True,4,0\n")
+    with pytest.raises(FormatError, match=r"x.csv: text: line 3: b'True' is not a number"):
+        read_events(r)
+
+
+def test_cr_only_line_endings_are_named(tmp_path):
+    p = tmp_path / "mac.txt"
+    p.write_bytes(b"0.1 1 2 1\r0.2 3 4 0\r")
+    with pytest.raises(FormatError, match=r"mac.txt: text: line 1: a carriage return .* CR alone"):
+        read_events(p)
+    q = tmp_path / "win.txt"  # CRLF is fine
+    q.write_bytes(b"0.1 1 2 1\r\n0.2 3 4 0\r\n")
+    assert read_events(q).events["t"].tolist() == [100000, 200000]
