@@ -142,6 +142,21 @@ def test_warp_sharpness_rewards_true_flow():
     assert good > 5 and wrong < 1
 
 
+def test_warp_sharpness_does_not_reward_small_flows_for_the_pixel_grid():
+    # Events on whole pixels, moved by at most 0.3 px in random directions: too little to
+    # sharpen or blur anything, so the ratio must stay near 1. Unsmoothed, the fractional
+    # shifts alone spread each bilinear vote over four pixels and the ratio fell to 0.83,
+    # which made any small flow (and zero flow most of all) look better than a right one.
+    rng = np.random.default_rng(0)
+    n = 4000
+    t = np.sort(rng.uniform(0, 30_000, n))
+    x, y = rng.integers(5, 55, n).astype(float), rng.integers(5, 35, n).astype(float)
+    angle = rng.uniform(0, 2 * np.pi, n)
+    flow = 20 * np.stack([np.cos(angle), np.sin(angle)], 1)  # px/s: <= 0.3 px over 15 ms
+    assert warp_sharpness(x, y, t, flow, SHAPE) == pytest.approx(1.0, abs=0.03)
+    assert warp_sharpness(x, y, t, flow, SHAPE, blur_px=0) < 0.9  # the bias the smoothing removes
+
+
 def test_numeric_masks_count_their_nonzero_pixels_and_shapes_must_agree():
     # 1 and 2 are both "in": a bitwise and of them is empty (IoU 0, a miss).
     from evseg.errors import EventDataError

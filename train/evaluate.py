@@ -30,9 +30,11 @@ it rejects some fits and the comparison must be on the same events):
 The ``overall`` row pools the targets of all presets.
 
 Real recordings without ground truth (:func:`evaluate_flow_real`, ``evseg eval flow-real``):
-the label-free warp sharpness (:func:`evseg.metrics.warp_sharpness`: variance of the image of
-events moved along their flow to the slice's middle, over that of the unmoved events) of both
-estimators on the targets where both give a flow, median over slices.
+the label-free warp sharpness (:func:`evseg.metrics.warp_sharpness`: variance of the smoothed
+image of events moved along their flow to the window's middle, over that of the unmoved
+events) of both estimators over 30 ms windows, every event with its own flow (three 10 ms
+slices, each with the context the pipeline gives), on the events where both give a flow;
+median over windows.
 """
 
 from __future__ import annotations
@@ -312,31 +314,48 @@ def recording_slices(events: np.ndarray, slice_us: int, max_slices: int) -> list
     return bounds
 
 
-def sharpness_of_slice(
-    events: np.ndarray, sensor_size, learned: Estimator, baseline: Estimator, cell_px: int = 2,
-    context: np.ndarray | None = None, history: np.ndarray | None = None,
+def sharpness_of_window(
+    events: np.ndarray, first: int, t0_us: int, sensor_size, learned: Estimator, baseline: Estimator,
+    slice_us: int = 10_000, n_slices: int = 3, context_us: int = FlowEvalConfig.context_us,
 ) -> tuple[float, float, int]:
-    """Warp sharpness of learned and baseline flow on the targets both estimate; and their count.
-    ``context``: events before the slice, neighbours for both estimators (as in the pipeline);
-    ``history``: events before the context, for the learned flow's slow-edge look."""
-    from evseg.veckm_flow.targets import select_targets
-
-    idx = select_targets(events, sensor_size, cell_px=cell_px)
-    p, _ = _flows(learned, events, sensor_size, idx, context, history)
-    b, _ = _flows(baseline, events, sensor_size, idx, context)
+    """Warp sharpness of learned and baseline flow over ``n_slices`` back-to-back slices of
+    ``slice_us`` from ``t0_us`` (``events[first]`` its first event), and the number of events
+    both estimate. Each slice's events all get a flow, with ``context_us`` of events before
+    the slice as neighbours (and the history the learned flow's slow-edge look needs), as in
+    the pipeline; the window's events are then warped to its middle."""
+    t = events["t"]
+    learned_parts, baseline_parts = [], []
+    for k in range(n_slices):
+        s0 = t0_us + k * slice_us
+        a, b = (int(v) for v in np.searchsorted(t, [s0, s0 + slice_us]))
+        e = events[a:b]
+        if len(e) == 0:
+            continue
+        targets = np.arange(len(e))
+        context = context_before(events, a, s0, context_us)
+        history = _history_before(learned, events, s0, slice_us, context_us)
+        learned_parts.append(_flows(learned, e, sensor_size, targets, context, history)[0])
+        baseline_parts.append(_flows(baseline, e, sensor_size, targets, context)[0])
+    stop = int(np.searchsorted(t, t0_us + n_slices * slice_us))
+    if not learned_parts:
+        return float("nan"), float("nan"), 0
+    p, b = np.concatenate(learned_parts), np.concatenate(baseline_parts)
+    e = events[first:stop]
     ok = np.all(np.isfinite(p), axis=1) & np.all(np.isfinite(b), axis=1)
-    e = events[idx[ok]]
+    x, y, te = e["x"][ok], e["y"][ok], e["t"][ok]
     shape = (sensor_size[1], sensor_size[0])
-    x, y, t = e["x"], e["y"], e["t"]
-    return warp_sharpness(x, y, t, p[ok], shape), warp_sharpness(x, y, t, b[ok], shape), int(ok.sum())
+    t_ref = t0_us + 0.5 * n_slices * slice_us
+    return (warp_sharpness(x, y, te, p[ok], shape, t_ref), warp_sharpness(x, y, te, b[ok], shape, t_ref),
+            int(ok.sum()))
 
 
 def evaluate_estimators_real(
-    learned: Estimator, baseline: Estimator, root: Path, slice_us: int = 10_000, max_slices: int = 20,
-    context_us: int = FlowEvalConfig.context_us,
+    learned: Estimator, baseline: Estimator, root: Path, slice_us: int = 10_000, n_slices: int = 3,
+    max_windows: int = 20, context_us: int = FlowEvalConfig.context_us,
 ) -> list[dict]:
-    """Rows per real recording: median warp sharpness of both estimators over slices (each
-    with ``context_us`` of events before it as neighbours)."""
+    """Rows per real recording: median warp sharpness of both estimators over up to
+    ``max_windows`` windows of ``n_slices`` x ``slice_us`` spread over it
+    (:func:`sharpness_of_window`)."""
     from evseg.io import read_events
 
     rows = []
@@ -346,20 +365,18 @@ def evaluate_estimators_real(
             continue
         stream = read_events(path)
         ls, bs, n = [], [], 0
-        for a, b in recording_slices(stream.events, slice_us, max_slices):
+        for a, _ in recording_slices(stream.events, n_slices * slice_us, max_windows):
             t0 = int(stream.events["t"][a])
-            context = context_before(stream.events, a, t0, context_us)
-            history = _history_before(learned, stream.events, t0, slice_us, context_us)
-            sl, sb, k = sharpness_of_slice(stream.events[a:b], stream.sensor_size, learned, baseline,
-                                           context=context, history=history)
+            sl, sb, k = sharpness_of_window(stream.events, a, t0, stream.sensor_size, learned, baseline,
+                                            slice_us, n_slices, context_us)
             if np.isfinite(sl) and np.isfinite(sb):
                 ls.append(sl)
                 bs.append(sb)
                 n += k
         rows.append({
             "recording": rel,
-            "slices": len(ls),
-            "targets": n,
+            "windows": len(ls),
+            "events": n,
             "sharpness_learned": _median(np.array(ls)),
             "sharpness_baseline": _median(np.array(bs)),
             "learned_sharper_share": float(np.mean(np.array(ls) >= np.array(bs))) if ls else float("nan"),
@@ -376,7 +393,7 @@ def evaluate_flow_real(quick: bool = False, model_path: str | Path | None = None
     if not root.is_dir():
         raise EvsegError(f"real recordings not found at {root} (set EVSEG_SHARED_DATA)")
     learned, baseline = _estimators(model_path, mirrors)
-    return evaluate_estimators_real(learned, baseline, root, max_slices=5 if quick else 20)
+    return evaluate_estimators_real(learned, baseline, root, max_windows=5 if quick else 20)
 
 
 # --------------------------------------------------------------------------- pictures
