@@ -100,11 +100,14 @@ def replay(
         raise ConfigError(f"replay packet_us must be a positive integer (us), got {packet_us!r}")
     packet_us = int(packet_us)
     t_first = None  # sensor time (us) of the first event
+    t_newest = None
     wall_first = 0.0
     for chunk in chunks:
+        _check_packet(chunk, t_newest, "replay")
         if len(chunk) == 0:
             continue
         t = chunk["t"]
+        t_newest = int(t[-1])
         if t_first is None:
             t_first, wall_first = int(t[0]), clock()
         bins = (t.astype(np.int64) - t_first) // packet_us
@@ -186,7 +189,10 @@ def run_live(
 
     Yields:
         :class:`LiveResult` per segmented window, in time order; ``result.window.first_event``
-        counts the source's events before the window, as ``pipeline.run`` does.
+        counts the source's events before the window, as ``pipeline.run`` does. When the source
+        raises (a camera unplugged), the windows complete before are yielded first, then its
+        error is raised. The reader thread pulls the source until the generator is closed: after
+        leaving a loop over it early, call its ``close()`` (or drop it) to stop the source.
     """
     if max_lag_us is not None and not (is_whole(max_lag_us) and max_lag_us >= 0):
         raise ConfigError(f"max_lag_us must be a non-negative integer (us) or None, got {max_lag_us!r}")
@@ -254,7 +260,13 @@ def _overlapped(pipeline, windows: "_LiveWindows", clock: Callable[[], float]) -
                     return
                 pending = (live, pipeline.submit_prepare(live.window, live.context))
             wait([pending[1]])
-            live = windows.take(block=False)
+            try:
+                live = windows.take(block=False)
+            except BaseException:
+                # The source failed: the window already prepared is still segmented and yielded.
+                done, pending = pending, None
+                yield _finish(pipeline, *done, clock)
+                raise
             job = None
             if live is not None and live is not _NOT_READY:
                 job = (live, pipeline.submit_prepare(live.window, live.context))
@@ -294,10 +306,18 @@ class _LiveWindows:
         self.t0: int | None = None  # start of the next window
         self.index = 0
         self.ended = False
+        self.error: BaseException | None = None  # what ended the source, when it failed
+        self.t_newest: int | None = None  # time (us) of the newest event of any packet so far
+
+    @property
+    def final(self) -> bool:
+        """The source ended normally: its last window may be incomplete. A source that failed
+        gives only the windows that were complete before it failed, as ``pipeline.run`` does."""
+        return self.ended and self.error is None
 
     def _ready(self) -> bool:
         return self.t0 is not None and len(self.buf) > 0 and (
-            self.t0 + self.window_us <= int(self.buf["t"][-1]) or (self.ended and self.t0 <= int(self.buf["t"][-1])))
+            self.t0 + self.window_us <= int(self.buf["t"][-1]) or (self.final and self.t0 <= int(self.buf["t"][-1])))
 
     def _drain(self, block: bool) -> None:
         """Take every packet that has arrived; with ``block``, wait for one first."""
@@ -312,11 +332,13 @@ class _LiveWindows:
                 self.ended = True
                 break
             if isinstance(packet, BaseException):
-                raise packet
+                # Raised by take() once the windows complete before the failure are handed out.
+                self.error, self.ended = packet, True
+                break
             self.n_packets += 1
             if len(packet) == 0:
                 continue
-            _check_packet(packet, new[-1] if new else self.buf)
+            _check_packet(packet, self.t_newest)
             off = None if self.sensor_size is None else first_off_sensor(packet, self.sensor_size)
             if off is not None:
                 w, h = self.sensor_size
@@ -325,7 +347,8 @@ class _LiveWindows:
             if self.t0 is None:
                 self.t0 = int(packet["t"][0])
             new.append(packet)
-            self.arrivals.append((int(packet["t"][-1]), arrived))
+            self.t_newest = int(packet["t"][-1])
+            self.arrivals.append((self.t_newest, arrived))
         # One copy per drain, not per packet (a backlog of many packets would be quadratic).
         if len(new) > 1:
             self.buf = np.concatenate(new)
@@ -339,13 +362,15 @@ class _LiveWindows:
         self._drain(block=False)
         while not self._ready():
             if self.ended:
+                if self.error is not None:
+                    raise self.error
                 return None
             if not block:
                 return _NOT_READY
             self._drain(block=True)
         w, stride = self.window_us, self.stride_us
         t_last = int(self.buf["t"][-1])
-        newest = newest_window_start(self.t0, t_last, w, stride, final=self.ended)
+        newest = newest_window_start(self.t0, t_last, w, stride, final=self.final)
         dropped = 0
         if self.max_lag_us is not None and t_last - (self.t0 + w) > self.max_lag_us and newest > self.t0:
             dropped = (newest - self.t0) // stride
@@ -366,18 +391,18 @@ class _LiveWindows:
         return live
 
 
-def _check_packet(packet: np.ndarray, buf: np.ndarray) -> None:
-    """A live packet must be events, sorted, and not older than the one before it: a window
-    once segmented cannot take late events."""
+def _check_packet(packet: np.ndarray, t_newest: int | None, where: str = "live source") -> None:
+    """A live packet must be events, sorted, and not older than the newest event of the packets
+    before it (``t_newest``, us): a window once segmented cannot take late events."""
     if getattr(packet, "dtype", None) != EVENT_DTYPE:
         got = f"dtype {packet.dtype}" if isinstance(packet, np.ndarray) else type(packet).__name__
-        raise EventDataError(f"live source: a packet must be an event array of dtype {EVENT_DTYPE} "
+        raise EventDataError(f"{where}: a packet must be an event array of dtype {EVENT_DTYPE} "
                              f"(evseg.events.make_events(x, y, t, p) makes one), got {got}")
     t = packet["t"]
     if len(t) > 1 and np.any(np.diff(t) < 0):
         at = int(np.flatnonzero(np.diff(t) < 0)[0])
-        raise EventDataError(f"live source: packet timestamps go back in time ({int(t[at])} -> "
+        raise EventDataError(f"{where}: packet timestamps go back in time ({int(t[at])} -> "
                              f"{int(t[at + 1])} us): sort the events of each packet")
-    if len(buf) and int(t[0]) < int(buf["t"][-1]):
-        raise EventDataError(f"live source: a packet starts at {int(t[0])} us, before the previous "
-                             f"packet's last event at {int(buf['t'][-1])} us: packets must come in time order")
+    if t_newest is not None and len(t) and int(t[0]) < t_newest:
+        raise EventDataError(f"{where}: a packet starts at {int(t[0])} us, before the previous "
+                             f"packet's last event at {t_newest} us: packets must come in time order")

@@ -172,6 +172,65 @@ def test_bad_live_input_is_a_clear_error(stream):
         list(run_live(_pipeline(stream), broken(), max_lag_us=None))
 
 
+@pytest.mark.parametrize("mode", MODES, ids=["sequential", "thread", "process"])
+@pytest.mark.parametrize("delay_s", [0.0, 0.05])
+def test_a_failing_source_still_gives_the_windows_complete_before_it_failed(stream, mode, delay_s):
+    """A camera unplugged (the source raises) after 35 ms of events: the three windows complete
+    by then are segmented and yielded, as pipeline.run does, then the error is raised; before,
+    an error arriving while they waited was raised at once and they were lost."""
+    import time
+
+    ev = stream.events
+    cut = int(np.searchsorted(ev["t"], int(ev["t"][0]) + 35_000))
+
+    def failing():
+        yield ev[:cut]
+        time.sleep(delay_s)
+        raise OSError("camera unplugged")
+
+    expected = []
+    with pytest.raises(OSError, match="camera unplugged"):
+        for r in _pipeline(stream).run(failing()):
+            expected.append(r.t0_us)
+    assert len(expected) == 3
+    got = []
+    with _pipeline(stream, **mode) as pipe:
+        with pytest.raises(OSError, match="camera unplugged"):
+            for r in run_live(pipe, failing(), max_lag_us=None):
+                got.append(r.window.t0_us)
+    assert got == expected
+
+
+def test_a_late_packet_is_refused_even_after_its_window_was_taken(stream):
+    """Without flow context and with gaps between windows (stride > window) the buffer is
+    empty between windows; a packet older than one already received must still be refused,
+    not counted twice into first_event."""
+    import time
+
+    ev, t0 = stream.events, int(stream.events["t"][0])
+    a = ev[ev["t"] < t0 + 15_000]
+    b = ev[(ev["t"] >= t0 + 5_000) & (ev["t"] < t0 + 60_000)]
+
+    def source():
+        yield a
+        time.sleep(0.3)  # the first window is taken before b arrives
+        yield b
+
+    pipe = _pipeline(stream, window_us=10_000, stride_us=20_000, flow_context_us=0)
+    with pytest.raises(EventDataError, match=r"a packet starts at \d+ us, before the previous packet's last event"):
+        list(run_live(pipe, source(), max_lag_us=None))
+
+
+def test_replay_checks_its_chunks(stream):
+    ev = stream.events
+    with pytest.raises(EventDataError, match=r"replay: a packet must be an event array of dtype .* got list"):
+        list(replay([[1, 2, 3]], speed=float("inf")))
+    with pytest.raises(EventDataError, match=r"replay: packet timestamps go back in time"):
+        list(replay([ev[:100][::-1]], speed=float("inf")))
+    with pytest.raises(EventDataError, match=r"replay: a packet starts at \d+ us, before the previous"):
+        list(replay([ev[100:200], ev[:100]], speed=float("inf")))
+
+
 def test_segment_realtime_labels_dropped_windows_unassigned_and_reports_them(stream, tmp_path, capsys):
     from evseg.io import write_npz
 
