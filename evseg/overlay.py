@@ -7,6 +7,7 @@ can go straight to ``cv2.imwrite`` or a ``cv2.VideoWriter``.
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -96,23 +97,36 @@ def label_overlay(
     return img
 
 
+MAX_VIDEO_FPS = 65535
+"""The highest frame rate an mp4 holds: its time base is 1 / fps with a 16-bit denominator."""
+
+FRAME_NAME = re.compile(r"\d{6}\.png")
+"""Names of the numbered frames :class:`VideoSink` writes (``000000.png``, ...)."""
+
+
 class VideoSink:
     """Write BGR frames to an mp4 (OpenCV ``mp4v``) and/or numbered PNGs in a folder.
 
     The video is written to a temporary name and renamed on :meth:`close`, so an interrupted
-    run never leaves a truncated file under the requested name.
+    run never leaves a truncated file under the requested name; leaving a ``with`` block on an
+    error keeps the frames written so far (a partial video), and an error of the video itself
+    then yields to the one in flight. Numbered frames of an earlier run in ``frames_dir`` are
+    removed when the first frame of this one is written (``stale_frames_removed`` counts them),
+    so the folder never mixes two runs; other files there are left alone.
     """
 
     def __init__(self, video: Path | None = None, frames_dir: Path | None = None, fps: float = 25.0):
         self.video = Path(video) if video is not None else None
         self.frames_dir = Path(frames_dir) if frames_dir is not None else None
-        if not (isinstance(fps, (int, float)) and math.isfinite(fps) and fps > 0):
-            raise EvsegError(f"the video's frame rate must be a positive number of frames per second, got {fps}")
+        if not (isinstance(fps, (int, float)) and math.isfinite(fps) and 0 < fps <= MAX_VIDEO_FPS):
+            raise EvsegError(f"the video's frame rate must be a positive number of frames per second up to "
+                             f"{MAX_VIDEO_FPS} (the mp4 time base), got {fps}")
         self.fps = float(fps)
         self._writer = None
         self._tmp: Path | None = None
         self._n = 0
         self._size: tuple[int, int] | None = None  # (height, width) of the first frame
+        self.stale_frames_removed = 0
         if self.video is not None and self.video.suffix.lower() != ".mp4":
             # OpenCV picks the container from the suffix and, for one it cannot write with
             # mp4v, may write nothing without saying so.
@@ -143,12 +157,26 @@ class VideoSink:
                     raise EvsegError(f"{self.video}: OpenCV cannot open an mp4 writer here")
             self._writer.write(frame)
         if self.frames_dir is not None:
+            if self._n == 0:
+                self._remove_stale_frames()
             name = self.frames_dir / f"{self._n:06d}.png"
             if not cv2.imwrite(str(name), frame):
                 raise EvsegError(f"{name}: OpenCV could not write the frame")
         self._n += 1
 
+    @property
+    def n_frames(self) -> int:
+        """Frames added so far."""
+        return self._n
+
+    def _remove_stale_frames(self) -> None:
+        for old in self.frames_dir.iterdir():
+            if FRAME_NAME.fullmatch(old.name) and old.is_file():
+                old.unlink()
+                self.stale_frames_removed += 1
+
     def close(self) -> None:
+        """Finish the video: rename it to its requested name."""
         if self._writer is not None:
             self._writer.release()
             self._writer = None
@@ -156,8 +184,21 @@ class VideoSink:
                 raise EvsegError(f"{self.video}: OpenCV wrote no video (is the mp4v codec available?)")
             self._tmp.replace(self.video)
 
+    def abort(self) -> None:
+        """Discard the unfinished video (a video already at the requested name stays)."""
+        if self._writer is not None:
+            self._writer.release()
+            self._writer = None
+            self._tmp.unlink(missing_ok=True)
+
     def __enter__(self) -> "VideoSink":
         return self
 
-    def __exit__(self, *exc) -> None:
-        self.close()
+    def __exit__(self, exc_type, *exc) -> None:
+        if exc_type is None:
+            self.close()
+            return
+        try:
+            self.close()  # an interrupted run keeps the frames it wrote, as its partial result
+        except EvsegError:
+            self.abort()  # the error in flight is the one to report, not a second one from here

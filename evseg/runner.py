@@ -78,8 +78,11 @@ def build_pipeline_config(job: SegmentJob):
     if job.threads is not None and job.threads < 1:
         raise ConfigError(f"--threads must be at least 1, got {job.threads}")
     _check_flow_options(job)
-    if not (math.isfinite(job.video_fps) and job.video_fps > 0):
-        raise ConfigError(f"--fps must be a positive number, got {job.video_fps}")
+    from evseg.overlay import MAX_VIDEO_FPS
+
+    if not (math.isfinite(job.video_fps) and 0 < job.video_fps <= MAX_VIDEO_FPS):
+        raise ConfigError(f"--fps must be a positive number up to {MAX_VIDEO_FPS} (the mp4 time base), "
+                          f"got {job.video_fps:g}")
     if job.min_track_windows < 1:
         raise ConfigError(f"--min-track-windows must be >= 1, got {job.min_track_windows}")
     if job.tracked_max_targets is not None and job.tracked_max_targets < 0:
@@ -151,6 +154,12 @@ def check_job_outputs(job: SegmentJob) -> None:
         check_output_path(job.video, "--video", (".mp4",), inputs)
     if job.frames is not None:
         check_output_folder(job.frames, "--frames")
+    outputs = [(o, p) for o, p in (("--out", job.out), ("--video", job.video), ("--frames", job.frames))
+               if p is not None]
+    for i, (option, path) in enumerate(outputs):
+        for other, other_path in outputs[i + 1:]:
+            if Path(path).resolve() == Path(other_path).resolve():
+                raise ConfigError(f"{option} and {other} are both {path}: give each output its own name")
 
 
 def config_yaml(config) -> str:
@@ -192,8 +201,27 @@ def _advance(bar, t_us: int, origin_us: int, n_windows: int) -> None:
     """Move the bar to recording time ``t_us`` (us; ``origin_us`` is its zero)."""
     bar.update(max((t_us - origin_us) / 1e6 - bar.n, 0.0))
     elapsed = bar.format_dict["elapsed"]
-    rtf = f"{bar.n / elapsed:.2f}x real time, " if elapsed > 0 else ""
-    bar.set_postfix_str(f"{rtf}{n_windows} windows", refresh=False)
+    rtf = f"{real_time_factor(bar.n / elapsed)}x real time, " if elapsed > 0 else ""
+    bar.set_postfix_str(f"{rtf}{plural(n_windows, 'window')}", refresh=False)
+
+
+def plural(n: int, word: str) -> str:
+    """``n`` and ``word``, with an s unless ``n`` is 1.
+
+    >>> plural(1, "window"), plural(3, "window")
+    ('1 window', '3 windows')
+    """
+    return f"{n} {word}" if n == 1 else f"{n} {word}s"
+
+
+def real_time_factor(value: float) -> str:
+    """A real-time factor with two decimals, or three significant digits below 0.01 (a short
+    recording's set-up time would otherwise read "0.00x").
+
+    >>> real_time_factor(0.7), real_time_factor(0.0043)
+    ('0.70', '0.0043')
+    """
+    return f"{value:.2f}" if value >= 0.01 or value == 0 else f"{value:.2g}"
 
 
 def run_segment_job(job: SegmentJob) -> str:
@@ -289,6 +317,7 @@ def run_segment_job(job: SegmentJob) -> str:
 
                 pipe.warm_up()  # the first window must not pay the one-time set-up
                 t_wall = time.perf_counter()
+                bar.reset(total=bar.total)  # nor the bar's real-time factor
                 live = run_live(pipe, replay(chunks, speed=job.speed),
                                 max_lag_us=int(round(job.max_lag_ms * 1000)))
                 results = _live_windows(live, latencies, dropped)
@@ -310,20 +339,26 @@ def run_segment_job(job: SegmentJob) -> str:
                 _advance(bar, res.t1_us if span is None else min(res.t1_us, span[1]), origin, n_windows)
             writer.add_unassigned(seen[0] - writer.n_written)  # events after the last window
     wall = time.perf_counter() - t_wall
+    frames = ""
+    if job.frames is not None:
+        stale = (f", {plural(sink.stale_frames_removed, 'numbered frame')} of an earlier run removed"
+                 if sink.stale_frames_removed else "")
+        frames = f"; {plural(sink.n_frames, 'frame')} in {job.frames}{stale}"
     speed = ""
     if t_first is not None and t_last is not None and wall > 0:
-        speed = f" in {wall:.1f} s ({(t_last - t_first) / 1e6 / wall:.2f}x real time)"
+        speed = f" in {wall:.1f} s ({real_time_factor((t_last - t_first) / 1e6 / wall)}x real time)"
     live = ""
     if job.realtime and latencies:
-        live = (f"; replayed at {job.speed:g}x the sensor's pace: {n_windows} of {n_windows + dropped[0]} windows "
+        pace = f"at {job.speed:g}x the sensor's pace" if math.isfinite(job.speed) else "as fast as it could be read"
+        live = (f"; replayed {pace}: {n_windows} of {plural(n_windows + dropped[0], 'window')} "
                 + (f"segmented, {dropped[0]} dropped to keep up (their events are labelled -1), labels "
                    if dropped[0] else "segmented, none dropped, labels ")
                 + f"{np.median(latencies):.1f} ms after their window was complete (median; p90 "
                 f"{np.percentile(latencies, 90):.1f} ms)")
     return (
-        f"wrote {job.out}: {writer.n_written} events, {n_windows} windows{speed}, "
-        f"{len(ids)} distinct objects, {n_objects / max(n_windows, 1):.2f} objects per window"
-        + live + (f"; video {job.video}" if job.video else "") + inferred
+        f"wrote {job.out}: {plural(writer.n_written, 'event')}, {plural(n_windows, 'window')}{speed}, "
+        f"{plural(len(ids), 'distinct object')}, {n_objects / max(n_windows, 1):.2f} objects per window"
+        + live + (f"; video {job.video}" if job.video else "") + frames + inferred
     )
 
 

@@ -878,7 +878,7 @@ def test_the_summarys_real_time_factor_counts_recording_time_not_window_time(sim
     assert main(["segment", str(d / "sim.npz"), "--flow", str(d / "flow.npz"), "--window-ms", "1000",
                  "--out", str(tmp_path / "r.npz"), "--no-progress"]) == 0
     span_s = (t[-1] - t[0]) / 1e6
-    assert f"1 windows in 1.0 s ({span_s:.2f}x real time)" in capsys.readouterr().out
+    assert f"1 window in 1.0 s ({span_s:.2f}x real time)" in capsys.readouterr().out
 
 
 def test_the_result_keeps_the_recordings_absolute_time_offset(sim, tmp_path):

@@ -29,6 +29,8 @@ import sys
 import time
 from pathlib import Path
 
+from evseg.overlay import MAX_VIDEO_FPS
+
 HELP = "per-event normal flow (px/s) of a recording, learned (ONNX) or plane-fit baseline -> flow.npz"
 
 
@@ -146,8 +148,14 @@ def run(args: argparse.Namespace) -> int:
     if args.fps is not None:
         if args.video is None:
             raise EvsegError("--fps sets the frame rate of --video: give --video too")
-        if not (math.isfinite(args.fps) and args.fps > 0):
-            raise EvsegError(f"--fps must be a positive number, got {args.fps}")
+        if not (math.isfinite(args.fps) and 0 < args.fps <= MAX_VIDEO_FPS):
+            raise EvsegError(f"--fps must be a positive number up to {MAX_VIDEO_FPS} (the mp4 time base), "
+                             f"got {args.fps:g}")
+    if args.max_px_s is not None:
+        if args.video is None:
+            raise EvsegError("--max-px-s sets the colour scale of --video: give --video too")
+        if not (math.isfinite(args.max_px_s) and args.max_px_s > 0):
+            raise EvsegError(f"--max-px-s must be a positive number (px/s), got {args.max_px_s:g}")
     est, info = _estimator(args)
     sensor = parse_sensor_size(args.sensor_size) if args.sensor_size else None
     t_start = time.perf_counter()
@@ -237,10 +245,9 @@ def _write_video(path: Path, frames, sensor_size, window_us: int, max_px_s: floa
     from evseg.io._atomic import atomic_path
     from evseg.visualize import color_wheel_legend, flow_events_to_image
 
-    if max_px_s is None:
+    if max_px_s is None:  # the 95th percentile of the speeds, rounded for the legend
         speeds = np.concatenate([np.hypot(f.nx, f.ny)[f.valid] for _, f in frames]) if frames else np.zeros(0)
-        max_px_s = float(np.percentile(speeds, 95)) if len(speeds) else 1.0
-    max_px_s = max(round(max_px_s, 0), 1.0)
+        max_px_s = max(round(float(np.percentile(speeds, 95)), 0), 1.0) if len(speeds) else 1.0
     w, h = sensor_size
     scale = max(1, int(np.ceil(360 / max(h, 1))))  # small sensors are enlarged for viewing
     legend = color_wheel_legend(size=min(96, max(48, h * scale // 3)), max_px_s=max_px_s)
@@ -250,20 +257,24 @@ def _write_video(path: Path, frames, sensor_size, window_us: int, max_px_s: floa
     with atomic_path(path) as tmp:
         tmp_mp4 = tmp.with_name(tmp.name + ".mp4")  # OpenCV picks the container from the suffix
         writer = cv2.VideoWriter(str(tmp_mp4), cv2.VideoWriter_fourcc(*"mp4v"), fps, size)
-        if not writer.isOpened():
-            raise EvsegError(f"{path}: OpenCV cannot open an mp4 writer here")
         try:
+            if not writer.isOpened():
+                raise EvsegError(f"{path}: OpenCV cannot open an mp4 writer here")
             for i, (ev, flow) in enumerate(frames):
                 xs, ys, fl = _fill_cells(ev["x"], ev["y"], np.stack([flow.nx, flow.ny], 1), cell_px, sensor_size)
                 img = flow_events_to_image(xs, ys, fl, sensor_size, max_px_s)
                 img = cv2.resize(img, size, interpolation=cv2.INTER_NEAREST)
                 lh, lw = legend.shape[:2]
                 img[-lh:, -lw:] = legend
-                cv2.putText(img, f"slice {i}  {i * window_us / 1e3:.0f} ms", (4, 14), cv2.FONT_HERSHEY_SIMPLEX,
-                            0.4, (0, 0, 0), 1, cv2.LINE_AA)
+                title = f"slice {i}  {i * window_us / 1e3:.0f} ms"
+                for colour, thickness in (((255, 255, 255), 3), ((0, 0, 0), 1)):  # outlined: readable on any flow
+                    cv2.putText(img, title, (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4, colour, thickness, cv2.LINE_AA)
                 writer.write(np.ascontiguousarray(img[..., ::-1]))  # RGB -> BGR
-        finally:
+        except BaseException:
             writer.release()
+            tmp_mp4.unlink(missing_ok=True)  # atomic_path removes its own temporary name only
+            raise
+        writer.release()
         tmp_mp4.replace(tmp)
 
 

@@ -54,6 +54,7 @@ def test_the_output_may_not_be_the_flow_file(recording, capsys):
     (["--out-is-a-folder"], "--out {d}/adir.npz: is a folder"),
     (["--frames", "rec.npz"], "--frames {d}/rec.npz: is a file, not a folder"),
     (["--out-below-a-file"], "--out {d}/rec.npz/r.npz: {d}/rec.npz is a file, not a folder"),
+    (["--frames", "r.npz"], "--out and --frames are both {d}/r.npz: give each output its own name"),
 ])
 def test_unusable_outputs_fail_before_any_work(extra, message, recording, tmp_path, capsys):
     rec, _ = recording
@@ -106,8 +107,10 @@ def test_video_frame_rate_is_the_users_choice(recording, tmp_path, capsys):
 
 @pytest.mark.parametrize("extra, message", [
     (["--fps", "10"], "--fps sets the frame rate of --video: give --video too"),
-    (["--fps", "0", "--video", "v.mp4"], "--fps must be a positive number, got 0.0"),
-    (["--fps", "nan", "--video", "v.mp4"], "--fps must be a positive number, got nan"),
+    (["--fps", "0", "--video", "v.mp4"], "--fps must be a positive number up to 65535 (the mp4 time base), got 0"),
+    (["--fps", "nan", "--video", "v.mp4"], "--fps must be a positive number up to 65535 (the mp4 time base), got nan"),
+    (["--fps", "70000", "--video", "v.mp4"], "--fps must be a positive number up to 65535 (the mp4 time base), "
+                                             "got 70000"),
 ])
 @pytest.mark.parametrize("command", ["segment", "flow"])
 def test_bad_frame_rates_are_one_line_errors(command, extra, message, recording, tmp_path, capsys):
@@ -197,3 +200,59 @@ def test_planefit_refuses_the_learned_flows_options(recording, tmp_path, capsys)
     rc, err = _run(capsys, "segment", str(rec), "--flow-method", "planefit", "--mirrors", "8",
                    "--out", str(tmp_path / "r.npz"))
     assert rc == 2 and "--flow-method planefit and --mirrors exclude each other" in err[0], err
+
+
+def test_video_and_frames_may_not_share_a_name(recording, tmp_path, capsys):
+    rec, flow = recording
+    v = tmp_path / "v.mp4"
+    rc, err = _run(capsys, "segment", str(rec), "--flow", str(flow), "--out", str(tmp_path / "r.npz"),
+                   "--video", str(v), "--frames", str(v))
+    assert rc == 2 and err == [f"evseg segment: error: --video and --frames are both {v}: give each output its "
+                               "own name"], err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["flow.npz", "rec.npz"]
+
+
+def test_frames_of_an_earlier_run_are_replaced_not_mixed(recording, tmp_path, capsys):
+    rec, flow = recording
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for i in range(7):  # an earlier, longer run's frames
+        (frames / f"{i:06d}.png").write_bytes(b"old")
+    (frames / "notes.txt").write_text("mine")
+    rc = main(["segment", str(rec), "--flow", str(flow), "--out", str(tmp_path / "r.npz"), "--frames", str(frames),
+               "--no-progress"])
+    out = capsys.readouterr()
+    assert rc == 0, out.err
+    assert sorted(p.name for p in frames.iterdir()) == [f"{i:06d}.png" for i in range(4)] + ["notes.txt"]
+    assert all((frames / f"{i:06d}.png").read_bytes() != b"old" for i in range(4))
+    assert f"; 4 frames in {frames}, 7 numbered frames of an earlier run removed" in out.out
+
+
+def test_an_error_during_the_run_is_reported_not_masked_by_the_video(recording, tmp_path, capsys, monkeypatch):
+    """An error while segmenting must be the one reported, even when the unfinished video then
+    fails to close (before, "OpenCV wrote no video" replaced the real error)."""
+    from evseg.overlay import VideoSink
+    import evseg.overlay
+
+    def fail_close(self):
+        self._writer = None
+        raise EvsegError(f"{self.video}: OpenCV wrote no video")
+
+    def boom(*a, **k):
+        raise EvsegError("the real problem")
+
+    monkeypatch.setattr(VideoSink, "close", fail_close)
+    monkeypatch.setattr(evseg.overlay, "label_overlay", boom)
+    rec, flow = recording
+    rc, err = _run(capsys, "segment", str(rec), "--flow", str(flow), "--out", str(tmp_path / "r.npz"),
+                   "--video", str(tmp_path / "v.mp4"))
+    assert rc == 2 and "the real problem" in err[-1] and "OpenCV" not in err[-1], err
+
+
+@pytest.mark.parametrize("value", ["nan", "inf", "0", "-5"])
+def test_flow_colour_scale_is_checked_before_any_work(value, recording, tmp_path, capsys):
+    rec, _ = recording
+    rc, err = _run(capsys, "flow", str(rec), "--out", str(tmp_path / "f.npz"), "--video", str(tmp_path / "f.mp4"),
+                   "--max-px-s", value)
+    assert rc == 2 and len(err) == 1 and "--max-px-s must be a positive number (px/s), got" in err[0], err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["flow.npz", "rec.npz"]  # nothing written or left
