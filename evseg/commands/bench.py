@@ -32,12 +32,27 @@ TARGETS = {
 }
 
 
+TARGET_HELP = {
+    "io": "reader throughput per file format (events/s, file size; 640x480 at ~1 M events/s)",
+    "sim": "simulator wall time per scene preset",
+    "flow": "normal flows/s of the learned flow and the plane fit, encoding/network split, scaling with "
+            "events per slice",
+    "seg": "segmentation core per stage (initialization, labeling and fitting) against node and candidate count",
+    "pipeline": "whole pipeline per stage, median and p90 ms per window, events/s, real-time factor (simulated "
+                "0.3/1/3 M events/s streams and the shared real recordings)",
+    "live": "live replay at the sensor's pace: windows segmented vs dropped, label latency",
+    "memory": "peak RSS of evseg segment streaming long recordings from disk",
+    "scaling": "time per window against the event rate (0.1-5 M events/s), growth exponent",
+}
+"""One line per target for ``evseg bench --help``."""
+
 # Targets whose function takes ``model_path`` (a normal-flow ONNX file; default the shipped one).
 MODEL_TARGETS = ("flow",)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("target", choices=sorted(TARGETS), help="what to time")
+    p.add_argument("target", choices=sorted(TARGETS),
+                   help="what to time: " + "; ".join(f"{t}: {TARGET_HELP[t]}" for t in sorted(TARGETS)))
     p.add_argument("--repeats", type=int, default=5, help="timed runs per row (median reported)")
     p.add_argument("--quick", action="store_true", help="fewer and smaller inputs (smoke run)")
     p.add_argument("--out", type=Path, default=None, help="write the markdown table here too")

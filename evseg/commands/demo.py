@@ -40,7 +40,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"simulating {args.duration:.2f} s of '{args.preset}' (seed {args.seed}) ...")
     rec = simulate(load_scene_preset(args.preset), seed=args.seed, duration_us=int(args.duration * 1e6))
     w, h = rec.stream.sensor_size
-    print(f"  {len(rec.stream):,} events, {w}x{h} px, {len(rec.object_ids)} moving objects")
+    n_objects = len(rec.object_ids)
+    print(f"  {len(rec.stream):,} events, {w}x{h} px, {n_objects} moving object{'' if n_objects == 1 else 's'}")
     cfg = PipelineConfig(
         flow="precomputed" if args.flow_method == "oracle" else args.flow_method,
         threads=args.threads,

@@ -189,7 +189,9 @@ def run(args: argparse.Namespace) -> int:
         if not args.no_progress:
             from tqdm import tqdm
 
-            windows = tqdm(windows, desc="normal flow", unit="slice", file=sys.stderr)
+            span = rec.time_span_us()  # known without decoding for arrays and HDF5
+            total = None if span is None else (span[1] - span[0]) // window_us + 1
+            windows = tqdm(windows, desc="normal flow", unit="slice", total=total, file=sys.stderr)
         n_events = 0
         context_us = int(round(args.context_ms * 1000))
         # The slow-edge look sees further back than the context: keep that much more.
@@ -230,6 +232,7 @@ def run(args: argparse.Namespace) -> int:
     print(
         f"{args.out}: {len(flow)} normal flows ({valid:.1%} valid) for {n_events} events, "
         f"{info['method']}, {elapsed:.2f} s ({len(flow) / max(elapsed, 1e-9):,.0f} flows/s incl. reading)"
+        + (f"; video {args.video}" if args.video is not None else "")
     )
     return 0
 
