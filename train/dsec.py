@@ -91,6 +91,20 @@ def _read_rectify_map(path: Path) -> np.ndarray:
     return rmap
 
 
+def check_dsec_output(out: str | Path, events_dir: Path, flow_dir: Path, pngs: list[Path] = ()) -> None:
+    """Refuse ``out`` before any work (:class:`~evseg.errors.ConfigError` naming ``--out``) when
+    it is not a ``.npz`` file name (the converter writes npz content), or when it is one of the
+    sequence's own files (``events.h5``, ``rectify_map.h5``, ``forward_timestamps.txt``, a flow
+    PNG): the raw data would be replaced."""
+    from evseg.io.output_paths import check_output_path
+
+    inputs = [("DSEC's raw events (events_dir/events.h5)", events_dir / "events.h5"),
+              ("the rectification map (events_dir/rectify_map.h5)", events_dir / "rectify_map.h5"),
+              ("the flow timestamps (flow_dir/forward_timestamps.txt)", flow_dir / "forward_timestamps.txt"),
+              *(("a flow map of flow_dir/forward", png) for png in pngs)]
+    check_output_path(Path(out), "--out", (".npz",), inputs)
+
+
 def convert_dsec(events_dir: str | Path, flow_dir: str | Path, out: str | Path, max_maps: int | None = None) -> Path:
     """Write one DSEC sequence as a training recording (module docstring) to ``out`` (.npz,
     atomically).
@@ -104,14 +118,18 @@ def convert_dsec(events_dir: str | Path, flow_dir: str | Path, out: str | Path, 
             flow in memory); None = all.
     Returns:
         ``out``.
+    Raises:
+        ConfigError: ``out`` does not end in ``.npz`` or is one of the sequence's files
+            (checked before anything is read).
     """
     from evseg.events import EVENT_DTYPE
     from evseg.io import open_recording
     from evseg.io._atomic import atomic_savez
 
     events_dir, flow_dir = Path(events_dir), Path(flow_dir)
-    ts = read_flow_timestamps(flow_dir / "forward_timestamps.txt")
     pngs = sorted((flow_dir / "forward").glob("*.png"))
+    check_dsec_output(out, events_dir, flow_dir, pngs)
+    ts = read_flow_timestamps(flow_dir / "forward_timestamps.txt")
     if len(pngs) != len(ts):
         raise FormatError(f"{flow_dir}: {len(pngs)} flow maps in forward/ but {len(ts)} rows in forward_timestamps.txt")
     if max_maps is not None:

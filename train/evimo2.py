@@ -59,14 +59,31 @@ def _ros_time_offset(folder: Path) -> float:
                           f"meta['meta']['ros_time_offset'] to align them with the events ({exc!r})") from None
 
 
+INPUT_FILES = ("dataset_events_xy.npy", "dataset_events_t.npy", "dataset_events_p.npy", "dataset_flow.npz",
+               "dataset_info.npz")
+"""The files of a sequence folder the converter reads."""
+
+
+def check_evimo2_output(out: str | Path, folder: Path) -> None:
+    """Refuse ``out`` before any work (:class:`~evseg.errors.ConfigError` naming ``--out``) when
+    it is not a ``.npz`` file name, or when it is one of the sequence's own files
+    (:data:`INPUT_FILES`, e.g. ``dataset_flow.npz``): EVIMO2's data would be replaced."""
+    from evseg.io.output_paths import check_output_path
+
+    inputs = [(f"the sequence's {name}", Path(folder) / name) for name in INPUT_FILES]
+    check_output_path(Path(out), "--out", (".npz",), inputs)
+
+
 def convert_evimo2(folder: str | Path, out: str | Path, max_maps: int | None = None) -> Path:
     """Write one EVIMO2 v2 sequence folder as a training recording (module docstring) to
     ``out`` (.npz, atomically). ``max_maps``: use only the first this many flow maps. Returns
-    ``out``."""
+    ``out``. An ``out`` that is not a ``.npz`` name or is one of the folder's files is a
+    :class:`~evseg.errors.ConfigError` before anything is read."""
     from evseg.events import make_events, validate_events
     from evseg.io._atomic import atomic_savez
 
     folder = Path(folder)
+    check_evimo2_output(out, folder)
     xy = _load(folder, "dataset_events_xy.npy")
     t_s = _load(folder, "dataset_events_t.npy")
     p = _load(folder, "dataset_events_p.npy")

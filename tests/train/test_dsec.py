@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from evseg.errors import FormatError
+from evseg.errors import ConfigError, FormatError
 from evseg.events import EventStream, make_events
 from evseg.io import write_h5
 from evseg.train.data import load_flow_recording
@@ -109,3 +109,20 @@ def test_command_line(sequence, tmp_path, capsys):
     assert "flow maps" in capsys.readouterr().out
     assert main([str(tmp_path), str(flow_dir), "--out", str(tmp_path / "t.npz")]) == 2
     assert "rectify_map.h5" in capsys.readouterr().err
+
+
+def test_the_output_may_not_replace_an_input_or_be_another_format(sequence, tmp_path, capsys):
+    ev_dir, flow_dir, _ = sequence
+    raw = (ev_dir / "events.h5").read_bytes()
+    # DSEC's own events.h5 (the suffix alone refuses it), and any name but .npz.
+    for out in (ev_dir / "events.h5", tmp_path / "out.h5", tmp_path / "noext"):
+        assert main([str(ev_dir), str(flow_dir), "--out", str(out)]) == 2
+        assert f"--out {out}: the file must end in .npz" in capsys.readouterr().err
+    assert (ev_dir / "events.h5").read_bytes() == raw
+    assert not (tmp_path / "out.h5").exists() and not (tmp_path / "noext").exists()
+    # A sequence file with the .npz suffix (the same file under another name counts too).
+    (flow_dir / "forward_timestamps.npz").symlink_to(flow_dir / "forward_timestamps.txt")
+    before = (flow_dir / "forward_timestamps.txt").read_bytes()
+    with pytest.raises(ConfigError, match=r"is the flow timestamps .* which the run reads"):
+        convert_dsec(ev_dir, flow_dir, flow_dir / "forward_timestamps.npz")
+    assert (flow_dir / "forward_timestamps.txt").read_bytes() == before

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from evseg.errors import FormatError
+from evseg.errors import ConfigError, FormatError
 from evseg.train.data import load_flow_recording
 from evseg.train.evimo2 import convert_evimo2, main
 
@@ -84,3 +84,17 @@ def test_command_line(tmp_path, capsys):
     assert "with ground-truth flow" in capsys.readouterr().out
     assert main([str(tmp_path), "--out", str(tmp_path / "t.npz")]) == 2
     assert "dataset_events_xy.npy" in capsys.readouterr().err
+
+
+def test_the_output_may_not_replace_an_input_or_be_another_format(tmp_path, capsys):
+    folder, _, _, _ = _folder(tmp_path)
+    flow = (folder / "dataset_flow.npz").read_bytes()
+    assert main([str(folder), "--out", str(folder / "dataset_flow.npz")]) == 2
+    assert "is the sequence's dataset_flow.npz, which the run reads" in capsys.readouterr().err
+    with pytest.raises(ConfigError, match=r"dataset_info.npz: is the sequence's dataset_info.npz"):
+        convert_evimo2(folder, folder / "dataset_info.npz")
+    assert (folder / "dataset_flow.npz").read_bytes() == flow
+    for out in (tmp_path / "out.h5", tmp_path / "noext"):
+        assert main([str(folder), "--out", str(out)]) == 2
+        assert f"--out {out}: the file must end in .npz" in capsys.readouterr().err
+        assert not out.exists()
