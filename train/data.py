@@ -36,7 +36,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from evseg.errors import ConfigError, FormatError
+from evseg.checks import is_whole
+from evseg.errors import ConfigError, EventDataError, FormatError
 from evseg.events import EVENT_DTYPE
 from evseg.train.augment import (
     NO_AUGMENTATION,
@@ -117,6 +118,82 @@ def check_training_seeds(seeds: Sequence[int], what: str) -> None:
             f"{what}: seeds must be in [0, {HELD_OUT_SEED_START}) (seeds >= {HELD_OUT_SEED_START} "
             f"are held out for evaluation), got {bad[:5]}"
         )
+
+
+def whole_at_least(value, name: str, minimum: int) -> int:
+    """``value`` as an int when it is a whole number >= ``minimum``; else a ConfigError naming
+    the option ``name``.
+
+    >>> whole_at_least(4096, "data.batch_size", 1)
+    4096
+    """
+    if not is_whole(value) or value < minimum:
+        raise ConfigError(f"{name} must be a whole number >= {minimum}, got {value!r}")
+    return int(value)
+
+
+def seed_range(value, name: str) -> list[int]:
+    """The seeds of ``[start, stop)`` (two whole numbers, start <= stop); else a ConfigError
+    naming ``name``."""
+    try:
+        start, stop = value
+    except (TypeError, ValueError):
+        raise ConfigError(f"{name} must be [start, stop), got {value!r}") from None
+    if not (is_whole(start) and is_whole(stop)) or start > stop:
+        raise ConfigError(f"{name} must be [start, stop) with whole numbers start <= stop, got {list(value)!r}")
+    return list(range(int(start), int(stop)))
+
+
+def check_slice_spec(spec: SliceSpec, what: str = "data.slices") -> None:
+    """Refuse slicing settings that would fail deep inside numpy while shards are built
+    (:class:`ConfigError` naming ``what.<field>`` and the value): ``slice_us`` must be
+    ``[min, max]`` microseconds with ``0 < min <= max``, the counts whole numbers >= 1,
+    ``target_us`` None or > 0 us, ``targets`` keyword arguments of
+    :func:`evseg.veckm_flow.select_targets` (a dict or a list of dicts)."""
+    try:
+        lo, hi = spec.slice_us
+    except (TypeError, ValueError):
+        raise ConfigError(f"{what}.slice_us must be [min, max] in microseconds, got {spec.slice_us!r}") from None
+    if not (is_whole(lo) and is_whole(hi)) or not 0 < lo <= hi:
+        raise ConfigError(f"{what}.slice_us must be [min, max] whole microseconds with 0 < min <= max, "
+                          f"got {list(spec.slice_us)!r}")
+    whole_at_least(spec.slices_per_scene, f"{what}.slices_per_scene", 1)
+    whole_at_least(spec.max_targets_per_slice, f"{what}.max_targets_per_slice", 1)
+    if spec.target_us is not None:
+        whole_at_least(spec.target_us, f"{what}.target_us", 1)
+    choices = spec.targets if isinstance(spec.targets, (list, tuple)) else [spec.targets or {}]
+    known = ("cell_px", "max_targets", "seed")  # select_targets' options
+    for choice in choices:
+        if not isinstance(choice, dict):
+            raise ConfigError(f"{what}.targets must be a mapping of {', '.join(known)} or a list of them, "
+                              f"got {choice!r}")
+        unknown = sorted(set(choice) - set(known))
+        if unknown:
+            raise ConfigError(f"{what}.targets: unknown option(s) {unknown}; known: {', '.join(known)}")
+
+
+def check_augment_config(augment: AugmentConfig, what: str = "data.augment") -> None:
+    """Refuse augmentation ranges that cannot be drawn from (:class:`ConfigError` naming
+    ``what.<field>``): each range ``[lo, hi]`` with ``lo <= hi``; scales > 0, ``keep_range``
+    in (0, 1], ``noise_rate_range`` >= 0 events/px/s, ``rotation_step_deg`` >= 0."""
+    import math
+
+    bounds = {"scale_range": (0.0, math.inf, False), "time_scale_range": (0.0, math.inf, False),
+              "keep_range": (0.0, 1.0, False), "noise_rate_range": (0.0, math.inf, True)}
+    for name, (low, high, low_ok) in bounds.items():
+        value = getattr(augment, name)
+        try:
+            a, b = (float(v) for v in value)
+        except (TypeError, ValueError):
+            raise ConfigError(f"{what}.{name} must be [low, high], got {value!r}") from None
+        inside = all(math.isfinite(v) and (v >= low if low_ok else v > low) and v <= high for v in (a, b))
+        if not inside or a > b:
+            limits = f"{'[' if low_ok else '('}{low:g}, {high:g}]"
+            raise ConfigError(f"{what}.{name} must be [low, high] with low <= high, both in {limits}, "
+                              f"got {list(value)!r}")
+    step = augment.rotation_step_deg
+    if isinstance(step, bool) or not isinstance(step, (int, float)) or not math.isfinite(step) or step < 0:
+        raise ConfigError(f"{what}.rotation_step_deg must be a number of degrees >= 0, got {step!r}")
 
 
 # --------------------------------------------------------------------------- slices
@@ -251,72 +328,164 @@ def load_flow_recording(path: str | Path) -> FlowSlice:
 
     - events: ``events`` (:data:`~evseg.events.EVENT_DTYPE`) or the columns ``x``, ``y``,
       ``t`` (integer microseconds), ``p`` (+1/-1 or 0/1);
-    - ``sensor_size``: ``[width, height]``;
-    - flow, one of
+    - ``sensor_size``: ``[width, height]``, whole pixels > 0;
+    - flow (floating point, px/s), one of
         * ``flow``: (N, 2) per-event optical flow, or
         * ``flow_maps``: (K, height, width, 2) dense optical flow and ``flow_t_us``: (K,)
-          increasing start times; map k applies to events with
+          increasing integer start times in microseconds; map k applies to events with
           ``flow_t_us[k] <= t < flow_t_us[k+1]`` (the last map to the end; events before
           ``flow_t_us[0]`` have no ground truth). DSEC's forward
           flow (a displacement in px over the interval dt) becomes px/s by dividing by dt;
           EVIMO2's per-frame flow the same way.
 
     Raises:
-        FormatError: a missing key, a field of the wrong shape or dtype (the message names
-            both), or no event with a finite flow.
+        FormatError: not an .npz archive, a missing key, a field that cannot be read (pickled
+            objects), of the wrong shape or dtype (integer flow: raw DSEC PNG values rather
+            than px/s; float times: seconds rather than microseconds), no events, or no event
+            with a finite flow; the message names the file and the field.
+        EventDataError: events unsorted or off the sensor (file, field and event named).
     """
     path = Path(path)
-    try:
-        z = np.load(path, allow_pickle=False)
-    except (OSError, ValueError) as exc:
-        raise FormatError(f"{path}: not a readable .npz file ({exc})") from None
-    with z:
+    with _open_npz(path) as z:
         keys = set(z.files)
-        if "events" in keys:
-            ev = z["events"]
-            if ev.dtype != EVENT_DTYPE:
-                raise FormatError(f"{path}: field 'events' has dtype {ev.dtype}, expected {EVENT_DTYPE}")
-        elif {"x", "y", "t", "p"} <= keys:
-            from evseg.events import make_events
+        ev = _recording_events(z, path, keys)
+        if "sensor_size" not in keys:
+            raise FormatError(f"{path}: needs field 'sensor_size' = [width, height] (has {sorted(keys)})")
+        w, h = _recording_sensor_size(_npz_field(z, path, "sensor_size"), path)
+        from evseg.events import validate_events
 
-            t = z["t"]
-            if not np.issubdtype(t.dtype, np.integer):
-                # Casting would truncate seconds (or any fraction) silently; evseg's readers take
-                # float time as seconds, but this layout's time is microseconds: say so.
-                raise FormatError(f"{path}: field 't' must be integer microseconds, got dtype {t.dtype} "
-                                  "(time in seconds: store np.round(t * 1e6).astype(np.int64))")
-            ev = make_events(z["x"], z["y"], t.astype(np.int64), z["p"])
-        else:
-            raise FormatError(f"{path}: needs field 'events' or fields 'x', 'y', 't', 'p' (has {sorted(keys)})")
-        if "sensor_size" not in keys or z["sensor_size"].shape != (2,):
-            raise FormatError(f"{path}: field 'sensor_size' must be [width, height]")
-        w, h = (int(v) for v in z["sensor_size"])
-        n = len(ev)
+        # Before any flow map is indexed with the events' coordinates.
+        validate_events(ev, (w, h), source=str(path))
+        if len(ev) == 0:
+            raise FormatError(f"{path}: holds no events, so the recording adds nothing to training")
         if "flow" in keys:
-            flow = np.asarray(z["flow"], np.float32)
-            if flow.shape != (n, 2):
-                raise FormatError(f"{path}: field 'flow' has shape {flow.shape}, expected ({n}, 2)")
+            flow = _checked_flow(_npz_field(z, path, "flow"), path, "flow")
+            if flow.shape != (len(ev), 2):
+                raise FormatError(f"{path}: field 'flow' has shape {flow.shape}, expected ({len(ev)}, 2)")
         elif "flow_maps" in keys and "flow_t_us" in keys:
-            maps, t_maps = z["flow_maps"], np.asarray(z["flow_t_us"], np.int64)
-            if maps.ndim != 4 or maps.shape[1:] != (h, w, 2) or len(t_maps) != len(maps):
-                raise FormatError(
-                    f"{path}: field 'flow_maps' has shape {maps.shape}, expected (K, {h}, {w}, 2) "
-                    f"with K = len(flow_t_us) = {len(t_maps)}"
-                )
-            if np.any(np.diff(t_maps) <= 0):
-                raise FormatError(f"{path}: field 'flow_t_us' must be strictly increasing")
-            k = np.searchsorted(t_maps, ev["t"], side="right") - 1
-            flow = np.asarray(maps[np.maximum(k, 0), ev["y"], ev["x"]], np.float32)
-            flow[k < 0] = np.nan  # before the first map's time: no ground truth
+            flow = _flow_from_maps(ev, _npz_field(z, path, "flow_maps"), _npz_field(z, path, "flow_t_us"), (w, h), path)
         else:
-            raise FormatError(f"{path}: needs field 'flow' (N, 2) or fields 'flow_maps' and 'flow_t_us'")
-    from evseg.events import validate_events
-
-    validate_events(ev, (w, h), source=str(path))
+            raise FormatError(f"{path}: needs field 'flow' (N, 2) or fields 'flow_maps' and 'flow_t_us' "
+                              f"(has {sorted(keys)})")
     if not np.isfinite(flow).all(axis=1).any():
         raise FormatError(f"{path}: no event has a finite ground-truth flow (every 'flow' row is NaN), "
                           "so the recording adds nothing to training")
     return FlowSlice(ev, (w, h), None, flow)
+
+
+def _open_npz(path: Path):
+    """``np.load(path)`` of an .npz archive, without pickles; anything else is a FormatError
+    saying what the file is instead."""
+    import zipfile
+
+    try:
+        with open(path, "rb") as f:
+            magic = f.read(6)
+    except OSError as exc:
+        raise FormatError(f"{path}: cannot read ({exc.strerror or type(exc).__name__})") from None
+    if not magic.startswith(b"PK"):
+        what = "a single .npy array" if magic.startswith(b"\x93NUMPY") else "not a zip archive"
+        raise FormatError(f"{path}: not an .npz file ({what}); a training recording is one archive of "
+                          "named arrays, as numpy.savez writes")
+    try:
+        return np.load(path, allow_pickle=False)
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+        raise FormatError(f"{path}: not a readable .npz file ({exc})") from None
+
+
+def _npz_field(z, path: Path, key: str) -> np.ndarray:
+    """One array of an open .npz; an unreadable one is a FormatError naming file and field."""
+    import zipfile
+    import zlib
+
+    try:
+        return z[key]
+    except ValueError as exc:
+        if "allow_pickle" in str(exc) or "Object arrays" in str(exc):
+            raise FormatError(f"{path}: field '{key}' holds Python objects (a pickled object array), which "
+                              "are not loaded; store plain numeric arrays") from None
+        raise FormatError(f"{path}: field '{key}' cannot be read ({exc})") from None
+    except (OSError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
+        raise FormatError(f"{path}: field '{key}' cannot be read ({exc})") from None
+
+
+def _recording_events(z, path: Path, keys: set[str]) -> np.ndarray:
+    """The events of a training recording: ``events`` or the columns ``x``, ``y``, ``t``, ``p``."""
+    if "events" in keys:
+        ev = _npz_field(z, path, "events")
+        if ev.dtype != EVENT_DTYPE:
+            raise FormatError(f"{path}: field 'events' has dtype {ev.dtype}, expected {EVENT_DTYPE}")
+        if ev.ndim != 1:
+            raise FormatError(f"{path}: field 'events' has shape {ev.shape}, expected (N,)")
+        return ev
+    if not {"x", "y", "t", "p"} <= keys:
+        raise FormatError(f"{path}: needs field 'events' or fields 'x', 'y', 't', 'p' (has {sorted(keys)})")
+    from evseg.events import make_events
+
+    t = _integer_microseconds(_npz_field(z, path, "t"), path, "t")
+    try:
+        return make_events(_npz_field(z, path, "x"), _npz_field(z, path, "y"), t, _npz_field(z, path, "p"))
+    except EventDataError as exc:
+        raise EventDataError(f"{path}: {str(exc).removeprefix('make_events: ')}") from None
+
+
+def _integer_microseconds(t: np.ndarray, path: Path, key: str) -> np.ndarray:
+    """Times ``t`` (field ``key`` of ``path``) as int64 microseconds; a float array (seconds,
+    or any fraction) is a FormatError: casting would truncate it silently."""
+    if not np.issubdtype(t.dtype, np.integer):
+        # evseg's readers take float time as seconds, but this layout's time is microseconds: say so.
+        raise FormatError(f"{path}: field '{key}' must be integer microseconds, got dtype {t.dtype} "
+                          f"(time in seconds: store np.round({key} * 1e6).astype(np.int64))")
+    return t.astype(np.int64)
+
+
+def _recording_sensor_size(size: np.ndarray, path: Path) -> tuple[int, int]:
+    """``sensor_size`` as ``(width, height)``: two whole numbers > 0."""
+    from evseg.events import checked_sensor_size
+
+    if size.shape != (2,):
+        raise FormatError(f"{path}: field 'sensor_size' must be [width, height], got shape {size.shape}")
+    try:
+        return checked_sensor_size(tuple(size.tolist()))
+    except EventDataError:
+        raise FormatError(f"{path}: field 'sensor_size' must be [width, height] in whole pixels > 0, "
+                          f"got {size.tolist()}") from None
+
+
+def _checked_flow(flow: np.ndarray, path: Path, key: str) -> np.ndarray:
+    """A flow field as float32 px/s. Integer flow is refused: ground-truth optical flow is a
+    float in px/s, and integers are raw encoded values (DSEC's 16-bit PNG: ``flow_px * 128 +
+    2**15`` over the interval) or rounded ones."""
+    if np.issubdtype(flow.dtype, np.integer) or flow.dtype == np.bool_:
+        raise FormatError(f"{path}: field '{key}' has integer dtype {flow.dtype}; optical flow must be "
+                          "floating point px/s (DSEC's 16-bit flow PNGs hold (value - 2**15) / 128 px over "
+                          "their interval: convert a DSEC sequence with python -m evseg.train.dsec)")
+    if not np.issubdtype(flow.dtype, np.floating):
+        raise FormatError(f"{path}: field '{key}' must hold floating point px/s, got dtype {flow.dtype}")
+    return np.asarray(flow, np.float32)
+
+
+def _flow_from_maps(ev: np.ndarray, maps: np.ndarray, t_maps: np.ndarray, sensor_size: tuple[int, int],
+                    path: Path) -> np.ndarray:
+    """Per-event optical flow (N, 2) float32 px/s from dense maps (K, height, width, 2) that
+    start at ``t_maps`` (K,) us; ``ev`` already checked to lie on the sensor."""
+    w, h = sensor_size
+    maps = _checked_flow(maps, path, "flow_maps")
+    if t_maps.ndim != 1:
+        raise FormatError(f"{path}: field 'flow_t_us' has shape {t_maps.shape}, expected (K,): one start "
+                          "time per map")
+    t_maps = _integer_microseconds(t_maps, path, "flow_t_us")
+    if maps.ndim != 4 or maps.shape[1:] != (h, w, 2) or len(t_maps) != len(maps) or len(maps) == 0:
+        raise FormatError(
+            f"{path}: field 'flow_maps' has shape {maps.shape}, expected (K, {h}, {w}, 2) "
+            f"with K = len(flow_t_us) = {len(t_maps)} > 0"
+        )
+    if np.any(np.diff(t_maps) <= 0):
+        raise FormatError(f"{path}: field 'flow_t_us' must be strictly increasing")
+    k = np.searchsorted(t_maps, ev["t"], side="right") - 1
+    flow = np.asarray(maps[np.maximum(k, 0), ev["y"], ev["x"]], np.float32)
+    flow[k < 0] = np.nan  # before the first map's time: no ground truth
+    return flow
 
 
 # --------------------------------------------------------------------------- shards
@@ -421,6 +590,19 @@ def collate_batch(batch: dict) -> dict:
 # --------------------------------------------------------------------------- Lightning
 
 
+def check_presets(presets) -> None:
+    """Refuse a preset name the simulator does not ship (:class:`ConfigError` naming
+    ``data.presets``) before any scene is simulated."""
+    from evseg.simulator.presets import list_scene_presets
+
+    if isinstance(presets, str) or not all(isinstance(p, str) for p in presets):
+        raise ConfigError(f"data.presets must be a list of scene preset names, got {presets!r}")
+    known = list_scene_presets()
+    unknown = [p for p in presets if p not in known]
+    if unknown:
+        raise ConfigError(f"data.presets: unknown scene preset(s) {unknown}; known: {', '.join(known)}")
+
+
 def _lightning_datamodule_base():
     import lightning.pytorch as pl
 
@@ -469,8 +651,8 @@ class NormalFlowDataModule(_lightning_datamodule_base()):
         num_workers: int = 0,
     ):
         super().__init__()
-        train = list(range(*train_seeds))
-        val = list(range(*val_seeds))
+        train = seed_range(train_seeds, "data.train_seeds")
+        val = seed_range(val_seeds, "data.val_seeds")
         check_training_seeds(train, "data.train_seeds")
         check_training_seeds(val, "data.val_seeds")
         if set(train) & set(val):
@@ -478,20 +660,24 @@ class NormalFlowDataModule(_lightning_datamodule_base()):
         for r in real_recordings:
             if not Path(r).is_file():
                 raise ConfigError(f"data.real_recordings: file not found: {r}")
+        check_presets(presets)
+        check_slice_spec(slices)
+        check_augment_config(augment)
         # All fields spelled out (defaults filled in): the shard key and the features then
         # never depend on defaults that may change between versions.
         self.encoding = _encoding_config(dict(encoding or {})).to_dict()
         self.presets = list(presets)
         self.train_seeds, self.val_seeds = train, val
-        self.duration_us = int(duration_us)
+        self.duration_us = whole_at_least(duration_us, "data.duration_us", 1)
         self.slices = slices
         self.augment = augment
         self.real_recordings = [str(r) for r in real_recordings]
-        self.real_repeats = int(real_repeats)
+        self.real_repeats = whole_at_least(real_repeats, "data.real_repeats", 1)
         self.cache_dir = Path(cache_dir)
-        self.batch_size = int(batch_size)
-        self.build_workers = build_workers or os.cpu_count() or 1
-        self.num_workers = int(num_workers)
+        self.batch_size = whole_at_least(batch_size, "data.batch_size", 1)
+        self.build_workers = (os.cpu_count() or 1) if build_workers is None else \
+            whole_at_least(build_workers, "data.build_workers", 1)
+        self.num_workers = whole_at_least(num_workers, "data.num_workers", 0)
         self.train_set: FlowTargetDataset | None = None
         self.val_set: FlowTargetDataset | None = None
 
@@ -517,11 +703,23 @@ class NormalFlowDataModule(_lightning_datamodule_base()):
                     jobs.append(("real", r, rep, 0, str(path), self.encoding, self.slices, augment))
         return jobs
 
+    def check_real_recordings(self) -> None:
+        """Read every real recording whose shards are not built yet (:func:`load_flow_recording`):
+        a broken file fails here, in seconds and naming itself, before any shard is built
+        (simulated scenes take minutes). Recordings with shards in the cache were read when
+        those were built (the shard key holds the file's size and time)."""
+        pending = {job[1] for job in self._jobs(True) if job[0] == "real" and not Path(job[4]).exists()}
+        for r in self.real_recordings:
+            if r in pending:
+                load_flow_recording(r)
+
     def prepare_data(self) -> None:
+        self.check_real_recordings()
         build_shards(self._jobs(True) + self._jobs(False), self.build_workers, progress=True)
 
     def setup(self, stage: str | None = None) -> None:
         if self.train_set is None:
+            self.check_real_recordings()  # prepare_data may not have run (direct use, other ranks)
             self.train_set = FlowTargetDataset(concat_examples([load_shard(p) for p in build_shards(self._jobs(True), 1)]))
             self.val_set = FlowTargetDataset(concat_examples([load_shard(p) for p in build_shards(self._jobs(False), 1)]))
             if len(self.train_set) == 0:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from evseg.errors import ConfigError, FormatError
+from evseg.errors import ConfigError, EventDataError, FormatError
 from evseg.train.augment import NO_AUGMENTATION, AugmentConfig, FlowSlice
 from evseg.train.data import (
     FlowTargetDataset,
@@ -192,3 +192,94 @@ def test_target_selection_drawn_per_slice(edge_recording):
     counts = {len(slice_examples(rec, {}, spec, np.random.default_rng(i))["features"]) for i in range(12)}
     # all events with flow vs the latest event of each 4x4 cell (10 x 8 cells on 40 x 30 px)
     assert counts == {len(rec), 80}
+
+
+def _edge_fields(edge_recording) -> dict:
+    with np.load(edge_recording) as z:
+        return dict(z)
+
+
+def _broken_recordings(rec: dict) -> dict:
+    """name -> (fields of a broken variant of the edge recording, the error's words)."""
+    w, h = EDGE_SENSOR
+    cols = {k: rec[k] for k in ("x", "y", "t", "p", "sensor_size")}
+    maps = np.tile(np.float32(EDGE_FLOW_PX_S), (2, h, w, 1))
+    t_maps = np.array([0, 30_000])
+    return {
+        # events off the sensor are named before the maps are indexed with them (IndexError)
+        "off_sensor_maps": ({**cols, "x": rec["x"] + 5, "flow_maps": maps, "flow_t_us": t_maps},
+                            r"field 'x' = 40 at event \d+ is outside the sensor \(40x30"),
+        "pickled": ({**cols, "flow": np.array([{"a": 1}] * len(rec["x"]), dtype=object)},
+                    r"field 'flow' holds Python objects \(a pickled object array\)"),
+        "text_flow": ({**cols, "flow": np.array([["a", "b"]] * len(rec["x"]))},
+                      r"field 'flow' must hold floating point px/s, got dtype <U1"),
+        "t_maps_2d": ({**cols, "flow_maps": maps, "flow_t_us": t_maps[:, None]},
+                      r"field 'flow_t_us' has shape \(2, 1\), expected \(K,\)"),
+        "t_maps_seconds": ({**cols, "flow_maps": maps, "flow_t_us": t_maps / 1e6},
+                           r"field 'flow_t_us' must be integer microseconds, got dtype float64 \(time in seconds"),
+        "raw_dsec_maps": ({**cols, "flow_maps": (maps / 100 * 128 + 2**15).astype(np.uint16), "flow_t_us": t_maps},
+                          r"field 'flow_maps' has integer dtype uint16; optical flow must be floating point px/s "
+                          r".*python -m evseg.train.dsec"),
+        "empty": ({**{k: v[:0] for k, v in cols.items() if k != "sensor_size"}, "sensor_size": cols["sensor_size"],
+                   "flow": rec["flow"][:0]}, r"holds no events"),
+        "negative_sensor": ({**cols, "sensor_size": -cols["sensor_size"], "flow": rec["flow"]},
+                            r"field 'sensor_size' must be \[width, height\] in whole pixels > 0, got \[-40, -30\]"),
+        "fractional_sensor": ({**cols, "sensor_size": cols["sensor_size"] + 0.5, "flow": rec["flow"]},
+                              r"field 'sensor_size' must be \[width, height\] in whole pixels > 0, got \[40.5, 30.5\]"),
+    }
+
+
+@pytest.mark.parametrize("name", ["off_sensor_maps", "pickled", "text_flow", "t_maps_2d", "t_maps_seconds",
+                                  "raw_dsec_maps", "empty", "negative_sensor", "fractional_sensor"])
+def test_broken_recordings_are_refused_naming_file_and_field(edge_recording, tmp_path, name):
+    from evseg.errors import EvsegError
+
+    fields, words = _broken_recordings(_edge_fields(edge_recording))[name]
+    path = tmp_path / f"{name}.npz"
+    np.savez(path, **fields)
+    with pytest.raises(EvsegError, match=rf"^{path}: {words}"):
+        load_flow_recording(path)
+
+
+def test_files_that_are_no_npz_archive_are_named_as_such(tmp_path):
+    (tmp_path / "hello.npz").write_text("hello")
+    with pytest.raises(FormatError, match=r"hello.npz: not an .npz file \(not a zip archive\)"):
+        load_flow_recording(tmp_path / "hello.npz")
+    np.save(tmp_path / "one.npy", np.zeros(3))
+    with pytest.raises(FormatError, match=r"one.npy: not an .npz file \(a single .npy array\)"):
+        load_flow_recording(tmp_path / "one.npy")
+
+
+def test_a_broken_real_recording_fails_before_any_shard_is_built(edge_recording, tmp_path):
+    """The simulated scenes come first in the build and take minutes: a broken real recording
+    must fail before them, naming itself, and leave no shard behind."""
+    fields, _ = _broken_recordings(_edge_fields(edge_recording))["off_sensor_maps"]
+    bad = tmp_path / "bad.npz"
+    np.savez(bad, **fields)
+    dm = NormalFlowDataModule(presets=["eed_like"], train_seeds=(0, 1), val_seeds=(900, 901), duration_us=40_000,
+                              real_recordings=[str(edge_recording), str(bad)], slices=SMALL,
+                              cache_dir=str(tmp_path / "cache"), batch_size=16, build_workers=1)
+    for step in (dm.prepare_data, lambda: dm.setup("fit")):
+        with pytest.raises(EventDataError, match=rf"^{bad}: field 'x'"):
+            step()
+        assert not list((tmp_path / "cache").rglob("*.npz"))
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"slices": SliceSpec(slice_us=(30_000, 10_000))},
+     r"data.slices.slice_us must be \[min, max\] whole microseconds with 0 < min <= max, got \[30000, 10000\]"),
+    ({"slices": SliceSpec(slices_per_scene=0)}, r"data.slices.slices_per_scene must be a whole number >= 1, got 0"),
+    ({"slices": SliceSpec(targets=[{"cell_px": 2}, {"cellpx": 4}])},
+     r"data.slices.targets: unknown option\(s\) \['cellpx'\]"),
+    ({"augment": AugmentConfig(keep_range=(0.0, 1.0))},
+     r"data.augment.keep_range must be \[low, high\] with low <= high, both in \(0, 1\], got \[0.0, 1.0\]"),
+    ({"batch_size": 0}, r"data.batch_size must be a whole number >= 1, got 0"),
+    ({"real_repeats": 0}, r"data.real_repeats must be a whole number >= 1, got 0"),
+    ({"duration_us": 1.5}, r"data.duration_us must be a whole number >= 1, got 1.5"),
+    ({"presets": ["nope"]}, r"data.presets: unknown scene preset\(s\) \['nope'\]; known: .*eed_like"),
+    ({"train_seeds": (64, 0)}, r"data.train_seeds must be \[start, stop\) with whole numbers start <= stop, "
+                               r"got \[64, 0\]"),
+])
+def test_bad_data_settings_are_refused_by_name(kwargs, message):
+    with pytest.raises(ConfigError, match=message):
+        NormalFlowDataModule(**kwargs)
