@@ -19,6 +19,35 @@ from evseg.veckm_flow.inference import FORMAT
 
 OPSET = 17
 
+MIN_OPSET, MAX_OPSET = 9, 20
+"""ONNX opsets :func:`export_onnx` accepts: torch's TorchScript exporter writes 7-20, below 9 it
+warns that the graph may be invalid (and onnxruntime has no Gemm kernel for opset 5), above 20
+it is not supported (torch.onnx ``ONNX_TORCHSCRIPT_EXPORTER_MAX_OPSET``)."""
+
+
+def check_opset(opset, option: str = "opset") -> int:
+    """``opset`` as an int when :func:`export_onnx` can write it (:data:`MIN_OPSET` to
+    :data:`MAX_OPSET`); else a :class:`~evseg.errors.ConfigError` naming ``option``.
+
+    >>> check_opset(17)
+    17
+    """
+    from evseg.checks import is_whole
+    from evseg.errors import ConfigError
+
+    if not is_whole(opset) or not MIN_OPSET <= opset <= MAX_OPSET:
+        raise ConfigError(f"{option} {opset}: the ONNX exporter writes opsets {MIN_OPSET}-{MAX_OPSET} "
+                          f"(the shipped model uses {OPSET})")
+    return int(opset)
+
+
+def non_finite_parameters(module) -> list[str]:
+    """Names of the parameters of a torch ``module`` that hold NaN or infinity (a diverged
+    training run); empty when all are finite."""
+    import torch
+
+    return [name for name, p in module.named_parameters() if not bool(torch.isfinite(p).all())]
+
 
 def model_metadata(cfg: EncodingConfig, head_kwargs: dict, extra: dict | None = None) -> dict[str, str]:
     """The ``metadata_props`` written into an exported model (all values strings)."""
@@ -43,12 +72,14 @@ def export_onnx(head, cfg: EncodingConfig, path: str | Path, opset: int = OPSET,
         head: the torch head (put into eval mode; not modified otherwise).
         cfg: its encoding (stored in the metadata).
         path: output ``.onnx`` file.
-        opset: ONNX opset (pinned default 17).
+        opset: ONNX opset (pinned default 17; :data:`MIN_OPSET` to :data:`MAX_OPSET`, else
+            :class:`~evseg.errors.ConfigError`).
         extra_metadata: more ``evseg.<key>`` metadata (e.g. training run, seed, accuracy).
     """
     import onnx
     import torch
 
+    opset = check_opset(opset)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
