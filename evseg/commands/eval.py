@@ -56,6 +56,10 @@ FIRST_VALIDATION_SEED = 900
 """The shipped normal-flow model trained on scene seeds 0-47 (``configs/train/default.yaml``):
 ``evseg eval pipeline --seeds`` refuses seeds below this, whose figures would flatter it."""
 
+FIRST_HELD_OUT_SEED = 1000
+"""Seeds from here on are the held-out scenes of the published tables (the default without
+``--seeds``); validation seeds 900-999 are for comparing settings and models."""
+
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("target", choices=sorted(TARGETS), help="what to evaluate")
@@ -98,11 +102,7 @@ def run(args: argparse.Namespace) -> int:
     if args.seeds is not None:
         seeds = _only_for(args.target, "--seeds", SEEDS_TARGETS, parse_seeds(args.seeds),
                           "it runs fixed scenes or recordings")
-        low = [s for s in seeds if s < FIRST_VALIDATION_SEED]
-        if args.target in LEARNED_FLOW_SEED_TARGETS and low:
-            raise EvsegError(f"--seeds: {low[:5]} are below {FIRST_VALIDATION_SEED}; the normal-flow model "
-                             "trained on scene seeds 0-47, so use validation seeds (900-999) or the held-out "
-                             "ones (>= 1000, the default)")
+        check_seed_choice(seeds, args.target, args.model)
         options["seeds"] = seeds
     if args.presets is not None:
         options["presets"] = _only_for(args.target, "--presets", PRESETS_TARGETS,
@@ -116,6 +116,34 @@ def run(args: argparse.Namespace) -> int:
     notes = (f"normal-flow model: {args.model}",) if "model_path" in options else ()
     emit_table(fn(quick=args.quick, **options), args.out, notes)
     return 0
+
+
+def check_seed_choice(seeds: list[int], target: str, model: Path | None) -> None:
+    """Refuse ``--seeds`` whose figures would mislead (:class:`EvsegError`, one line):
+
+    - seeds below :data:`FIRST_VALIDATION_SEED` for a target that runs a trained normal-flow
+      model (``model``: the user's ``--model``, None: the shipped one), where training
+      scenes are drawn;
+    - validation seeds mixed with held-out ones (>= :data:`FIRST_HELD_OUT_SEED`): a
+      comparison would then be tuned on part of the published tables' scenes.
+
+    >>> check_seed_choice([900, 901], "flow", None)
+    """
+    low = [s for s in seeds if s < FIRST_VALIDATION_SEED]
+    if target in LEARNED_FLOW_SEED_TARGETS and low:
+        if model is None:
+            whose = "the shipped normal-flow model was trained on scene seeds 0-47"
+        else:
+            whose = (f"training configs draw their scenes there (data.train_seeds; the shipped model's: "
+                     f"0-47), so {model} may have been trained on them")
+        raise EvsegError(f"--seeds: {low[:5]} are below {FIRST_VALIDATION_SEED}; {whose}: use validation "
+                         f"seeds (900-999) or the held-out ones (>= {FIRST_HELD_OUT_SEED}, the default)")
+    held_out = [s for s in seeds if s >= FIRST_HELD_OUT_SEED]
+    if held_out and len(held_out) < len(seeds):
+        raise EvsegError(f"--seeds: mixes held-out seeds ({held_out[:5]}, >= {FIRST_HELD_OUT_SEED}) with others; "
+                         f"compare settings and models on validation seeds only ({FIRST_VALIDATION_SEED}-"
+                         f"{FIRST_HELD_OUT_SEED - 1}), the held-out ones are for the published tables (the "
+                         "default without --seeds)")
 
 
 def parse_seeds(text: str) -> list[int]:
