@@ -35,7 +35,11 @@ class NormalFlowModule(pl.LightningModule):
     """Train a :class:`~evseg.veckm_flow.FlowHead` on precomputed encoder features.
 
     Args:
-        encoding: :class:`~evseg.veckm_flow.EncodingConfig` fields (also used by the data).
+        encoding: the :class:`~evseg.veckm_flow.EncodingConfig` (also used by the data), or a
+            dict of its fields (a checkpoint's hyper-parameters). Typed as the dataclass so
+            that LightningCLI parses each field with its type (``--model.encoding.d 16``,
+            ``--model.encoding.polarity false``) and merges a later ``--config`` that sets a
+            few fields with the earlier ones, instead of replacing the whole encoding.
         head: keyword arguments of :class:`~evseg.veckm_flow.FlowHead` besides the input width
             (which follows from ``encoding``).
         lr: peak learning rate (AdamW, one-cycle schedule over the run's steps).
@@ -74,7 +78,7 @@ class NormalFlowModule(pl.LightningModule):
 
     def __init__(
         self,
-        encoding: dict | None = None,
+        encoding: EncodingConfig = EncodingConfig(),  # noqa: B008 - frozen, never modified
         head: dict | None = None,
         lr: float = 3e-3,
         weight_decay: float = 1e-4,
@@ -88,7 +92,7 @@ class NormalFlowModule(pl.LightningModule):
         object_weight_uncertainty: bool = False,
     ):
         super().__init__()
-        encoding = EncodingConfig.from_dict(dict(encoding or {})).to_dict()
+        encoding = encoding_fields(encoding)
         head = _head_arguments(head)
         self.save_hyperparameters({"encoding": encoding, "head": head, "lr": lr,
                                    "weight_decay": weight_decay,
@@ -239,6 +243,18 @@ class NormalFlowModule(pl.LightningModule):
         sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=self.hparams.lr, total_steps=int(total),
                                                     pct_start=pct_start)
         return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
+
+
+def encoding_fields(encoding) -> dict:
+    """Every :class:`~evseg.veckm_flow.EncodingConfig` field of ``encoding`` (an
+    ``EncodingConfig``, a dict of some of its fields, a parsed config group with ``as_dict``,
+    or None: the defaults) as a plain dict; an unknown field or a bad value is a
+    :class:`~evseg.errors.ConfigError` naming it."""
+    if isinstance(encoding, EncodingConfig):
+        return encoding.to_dict()
+    if hasattr(encoding, "as_dict"):  # jsonargparse's Namespace (a linked config group)
+        encoding = encoding.as_dict()
+    return EncodingConfig.from_dict(dict(encoding or {})).to_dict()
 
 
 def _head_arguments(head: dict | None) -> dict:

@@ -6,7 +6,9 @@ works: ``evseg train --config configs/train/default.yaml --trainer.max_steps 200
 (``runs/<config>/normal_flow/version_N``, set by the config's logger:
 ``--trainer.logger.init_args.save_dir DIR`` moves it) receives the effective config,
 checkpoints (``last.ckpt``: the final step) and CSV metrics. A run resumes from a checkpoint
-with ``--ckpt_path FILE`` and the same ``--trainer.max_steps``.
+with ``--ckpt_path FILE`` and the same ``--trainer.max_steps``, into a new version_N folder
+(not bit-identical to an uninterrupted run: Lightning's dataloader is not resumable).
+Every --config file, --ckpt_path and the data settings are checked before anything is built.
 Equivalent to ``python -m evseg.train fit --config ...``.
 """
 
@@ -35,7 +37,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         required=True,
         metavar="CONFIG.yaml [LIGHTNING OPTIONS]",
         help="training config (configs/train/default.yaml, quick.yaml); must come last: "
-        "the options after it go to LightningCLI",
+        "the options after it go to LightningCLI (evseg train --config FILE --help lists them)",
     )
 
 
@@ -43,8 +45,8 @@ def run(args: argparse.Namespace) -> int:
     if not args.config:
         raise ConfigError("--config needs a YAML file")
     config, rest = args.config[0], args.config[1:]
-    if not Path(config).is_file():
-        raise ConfigError(f"--config: file not found: {config}")
+    for path in [config, *_more_configs(rest)]:
+        check_training_config(path)
     from lightning.fabric.utilities.exceptions import MisconfigurationException
 
     from evseg.train.cli import main
@@ -56,9 +58,62 @@ def run(args: argparse.Namespace) -> int:
             # The arguments are sys.argv's own, handed over on purpose: Lightning's warning
             # against giving both would only confuse.
             warnings.filterwarnings("ignore", message="LightningCLI's args parameter")
-            main([args.subcommand, "--config", config, *rest])
+            main([args.subcommand, "--config", config, *rest], prog="evseg train")
     except MisconfigurationException as exc:
         # Lightning's word for a setting this machine or run cannot honour (e.g. an
         # accelerator it does not have): the user's to change, not a bug in evseg.
-        raise ConfigError(f"{config}: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
+        raise ConfigError(lightning_setting_problem(str(exc))) from None
     return 0
+
+
+def _more_configs(rest: list[str]) -> list[str]:
+    """The files of further ``--config FILE`` / ``--config=FILE`` / ``-c FILE`` options among the
+    options handed to LightningCLI."""
+    out = []
+    for i, arg in enumerate(rest):
+        if arg in ("--config", "-c") and i + 1 < len(rest):
+            out.append(rest[i + 1])
+        elif arg.startswith("--config="):
+            out.append(arg.split("=", 1)[1])
+    return out
+
+
+def check_training_config(path: str) -> None:
+    """Raise :class:`ConfigError` naming ``--config`` and ``path`` unless it is a readable YAML
+    file holding a mapping (LightningCLI would otherwise fail with a decoding traceback, e.g. on
+    a ``.npz`` given by mistake)."""
+    import yaml
+
+    from evseg.errors import yaml_problem
+
+    p = Path(path)
+    if not p.is_file():
+        raise ConfigError(f"--config: file not found: {path}")
+    try:
+        doc = yaml.safe_load(p.read_text(encoding="utf-8"))
+    except UnicodeDecodeError:
+        raise ConfigError(f"--config {path}: not a text file (a training config is YAML, e.g. "
+                          "configs/train/default.yaml)") from None
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"--config {path}: {yaml_problem(exc)}") from None
+    except OSError as exc:
+        raise ConfigError(f"--config {path}: cannot read ({exc.strerror or type(exc).__name__})") from None
+    if not isinstance(doc, dict):
+        raise ConfigError(f"--config {path}: a training config is a YAML mapping (trainer:, model:, data:), "
+                          f"got {type(doc).__name__}")
+
+
+def lightning_setting_problem(message: str) -> str:
+    """One line for a Lightning ``MisconfigurationException``: a trainer setting this machine
+    or run cannot honour. The settings come from the config files and the command line alike,
+    so no file is blamed; an accelerator the machine lacks gets the option that works.
+
+    >>> lightning_setting_problem("No supported gpu backend found!")
+    'this machine has no such accelerator (No supported gpu backend found!); train on the CPU with --trainer.accelerator cpu'
+    """
+    first = message.splitlines()[0].strip() if message.strip() else "Lightning refused the trainer settings"
+    low = first.lower()
+    if "backend found" in low or "not available" in low or "can not run on your system" in low:
+        return (f"this machine has no such accelerator ({first}); train on the CPU with "
+                "--trainer.accelerator cpu")
+    return f"trainer settings (config or command line): {first}"

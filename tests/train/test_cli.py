@@ -2,12 +2,17 @@
 
 from __future__ import annotations
 
+import contextlib
 import csv
+import logging
 import os
 import subprocess
 import sys
 from pathlib import Path
 
+# Imported at collection: Lightning's log handler then binds to the session's stderr, not to
+# the stderr of the first test's capsys (closed after that test).
+import lightning.pytorch  # noqa: F401
 import pytest
 import yaml
 
@@ -62,6 +67,21 @@ def test_fit_writes_config_metrics_and_a_loadable_checkpoint(tmp_path, edge_reco
     assert head.hidden == 16 and enc.d == cfg["model"]["encoding"]["d"]
 
 
+@contextlib.contextmanager
+def _lightning_messages():
+    """The messages Lightning logs inside the block. Its logger does not propagate to the root
+    logger (caplog) when it was imported before any handler existed: listen on it directly."""
+    messages: list[str] = []
+    listener = logging.Handler(logging.INFO)
+    listener.emit = lambda record: messages.append(record.getMessage())
+    lightning_log = logging.getLogger("lightning.pytorch")
+    lightning_log.addHandler(listener)
+    try:
+        yield messages
+    finally:
+        lightning_log.removeHandler(listener)
+
+
 def test_evseg_train_passes_options_through(tmp_path, edge_recording):
     import warnings
 
@@ -72,6 +92,8 @@ def test_evseg_train_passes_options_through(tmp_path, edge_recording):
     assert rc == 0
     # evseg hands LightningCLI the command line on purpose: no warning against doing so.
     assert not [w for w in caught if "LightningCLI's args parameter" in str(w.message)]
+    # Nor Lightning's pytree helper's deprecation notice, known and harmless, which every run printed.
+    assert not [w for w in caught if "LeafSpec" in str(w.message)]
     assert (_run_dir(tmp_path) / "checkpoints" / "last.ckpt").exists()
     assert evseg_main(["train", "--config", str(tmp_path / "missing.yaml")]) == 2
 
@@ -129,8 +151,11 @@ def test_last_checkpoint_holds_the_final_step_and_resumes(tmp_path, edge_recordi
     args = [*_tiny_args(tmp_path, edge_recording), "--data.val_seeds", "[900, 901]",
             "--data.presets", "[eed_like]", "--data.train_seeds", "[0, 1]", "--data.duration_us", "40000",
             "--trainer.max_steps", "7", "--trainer.val_check_interval", "4"]
-    cli = main(["fit", "--config", str(QUICK), *args])
+    with _lightning_messages() as messages:
+        cli = main(["fit", "--config", str(QUICK), *args])
     assert cli.trainer.global_step == 7
+    # The final last.ckpt says how it is saved: no "weights_only was not set" notice.
+    assert any("max_steps=7" in m for m in messages) and not [m for m in messages if "weights_only" in m]
     last = _run_dir(tmp_path) / "checkpoints" / "last.ckpt"
     assert torch.load(last, weights_only=False)["global_step"] == 7
     # Resuming it with the same length is a no-op run; with another length a one-line error.
@@ -149,4 +174,80 @@ def test_an_accelerator_the_machine_lacks_is_a_user_error(tmp_path, edge_recordi
     rc = evseg_main(["train", "--config", str(QUICK), *_tiny_args(tmp_path, edge_recording),
                      "--trainer.accelerator", "gpu"])
     err = capsys.readouterr().err.strip().splitlines()
-    assert rc == 2 and len(err) == 1 and str(QUICK) in err[0] and "gpu" in err[0].lower(), err
+    # About the machine, not the config file, with the option that works.
+    assert rc == 2 and len(err) == 1 and str(QUICK) not in err[0], err
+    assert "this machine has no such accelerator" in err[0] and "--trainer.accelerator cpu" in err[0], err
+    assert not (tmp_path / "normal_flow").exists()  # refused before the run folder is made
+
+
+def _cli_without_run(args: list[str]):
+    """Parse and instantiate (model, data, trainer) as `fit` would, without fitting."""
+    import warnings
+
+    from evseg.train.cli import NormalFlowCLI
+    from evseg.train.data import NormalFlowDataModule
+    from evseg.train.module import NormalFlowModule
+
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="LightningCLI's args parameter")
+        return NormalFlowCLI(NormalFlowModule, NormalFlowDataModule, args=args, run=False,
+                             parser_kwargs={"parser_mode": "yaml"})
+
+
+def test_encoding_fields_are_typed_on_the_command_line_and_merged_from_a_second_config(tmp_path, edge_recording):
+    from evseg.veckm_flow.encoding import EncodingConfig
+
+    second = tmp_path / "t30.yaml"
+    second.write_text("model:\n  encoding:\n    t_scale_us: 30000.0\n")
+    cli = _cli_without_run(["--config", str(QUICK), "--config", str(second), *_tiny_args(tmp_path, edge_recording),
+                            "--model.encoding.pyramid_levels", "2", "--model.encoding.d", "16",
+                            "--model.encoding.window_px", "2", "--model.encoding.seed", "3"])
+    expected = EncodingConfig(d=16, window_px=2, seed=3, pyramid_levels=2, t_scale_us=30000.0,
+                              polarity=True).to_dict()  # polarity: quick.yaml's, kept
+    assert cli.model.hparams.encoding == cli.datamodule.encoding == expected
+    cli = _cli_without_run(["--config", str(QUICK), *_tiny_args(tmp_path, edge_recording),
+                            "--model.encoding.polarity", "false"])
+    assert cli.model.hparams.encoding["polarity"] is False and cli.datamodule.encoding["polarity"] is False
+
+
+def test_parse_errors_and_usage_name_evseg_train(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        evseg_main(["train", "--config", str(QUICK), "--trainer.max_stepz", "2"])
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert "tip: For details of accepted options run: evseg train --help" in err and "evseg fit" not in err
+    assert err.startswith("usage: evseg train ")
+    with pytest.raises(SystemExit):
+        evseg_main(["train", "--config", str(QUICK), "--help"])
+    assert capsys.readouterr().out.startswith("usage: evseg train ")
+
+
+@pytest.mark.parametrize("option, message", [
+    (["--ckpt_path", "{tmp}/nope.ckpt"], "--ckpt_path {tmp}/nope.ckpt: file not found"),
+    (["--ckpt_path", "{tmp}/text.ckpt"], "--ckpt_path {tmp}/text.ckpt: not a Lightning checkpoint torch can read"),
+    (["--data.slices.slice_us", "[30000, 10000]"],
+     "data.slices.slice_us must be [min, max] whole microseconds with 0 < min <= max, got [30000, 10000]"),
+    (["--data.batch_size", "0"], "data.batch_size must be a whole number >= 1, got 0"),
+    (["--data.presets", "[nope]"], "data.presets: unknown scene preset(s) ['nope']"),
+    (["--data.real_recordings", "[{tmp}/hello.npz]"], "{tmp}/hello.npz: not an .npz file (not a zip archive)"),
+])
+def test_bad_options_fail_at_once_in_one_line(tmp_path, edge_recording, capsys, option, message):
+    (tmp_path / "text.ckpt").write_text("not a checkpoint")
+    (tmp_path / "hello.npz").write_text("hello")
+    option = [o.format(tmp=tmp_path) for o in option]
+    rc = evseg_main(["train", "--config", str(QUICK), *_tiny_args(tmp_path, edge_recording), *option])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and err[0].startswith(f"evseg train: error: {message.format(tmp=tmp_path)}"), err
+    # Before any data is built and before the run folder is made.
+    assert not (tmp_path / "cache").exists() and not (tmp_path / "normal_flow").exists()
+
+
+def test_a_config_that_is_no_yaml_is_one_line(tmp_path, capsys):
+    np_file = tmp_path / "some.npz"
+    np_file.write_bytes(b"PK\x03\x04\xff\xfe\x00binary")
+    assert evseg_main(["train", "--config", str(np_file)]) == 2
+    assert capsys.readouterr().err.strip() == (f"evseg train: error: --config {np_file}: not a text file (a training "
+                                               "config is YAML, e.g. configs/train/default.yaml)")
+    (tmp_path / "list.yaml").write_text("- a\n- b\n")
+    assert evseg_main(["train", "--config", str(QUICK), "--config", str(tmp_path / "list.yaml")]) == 2
+    assert "list.yaml: a training config is a YAML mapping" in capsys.readouterr().err
