@@ -39,6 +39,7 @@ import numpy as np
 from evseg.checks import is_whole
 from evseg.errors import ConfigError, EventDataError, FormatError
 from evseg.events import EVENT_DTYPE
+from evseg.io.numpy_files import LATEST_PLAUSIBLE_US
 from evseg.train.augment import (
     NO_AUGMENTATION,
     AugmentConfig,
@@ -436,6 +437,10 @@ def _integer_microseconds(t: np.ndarray, path: Path, key: str) -> np.ndarray:
         # evseg's readers take float time as seconds, but this layout's time is microseconds: say so.
         raise FormatError(f"{path}: field '{key}' must be integer microseconds, got dtype {t.dtype} "
                           f"(time in seconds: store np.round({key} * 1e6).astype(np.int64))")
+    if len(t) and np.abs(t.astype(np.float64)).max() > LATEST_PLAUSIBLE_US:
+        i = int(np.argmax(np.abs(t.astype(np.float64)) > LATEST_PLAUSIBLE_US))
+        raise FormatError(f"{path}: field '{key}' = {t[i]} at {i} is after the year 2100 as microseconds: "
+                          f"nanoseconds? store ({key} + 500) // 1000")
     return t.astype(np.int64)
 
 

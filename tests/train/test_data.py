@@ -220,6 +220,9 @@ def _broken_recordings(rec: dict) -> dict:
         "raw_dsec_maps": ({**cols, "flow_maps": (maps / 100 * 128 + 2**15).astype(np.uint16), "flow_t_us": t_maps},
                           r"field 'flow_maps' has integer dtype uint16; optical flow must be floating point px/s "
                           r".*python -m evseg.train.dsec"),
+        "t_nanoseconds": ({**cols, "t": rec["t"].astype(np.int64) * 1000 + 1_700_000_000_000_000_000,
+                           "flow": rec["flow"]},
+                          r"field 't' = 1700000000000\d+ at 0 is after the year 2100 as microseconds: nanoseconds\?"),
         "empty": ({**{k: v[:0] for k, v in cols.items() if k != "sensor_size"}, "sensor_size": cols["sensor_size"],
                    "flow": rec["flow"][:0]}, r"holds no events"),
         "negative_sensor": ({**cols, "sensor_size": -cols["sensor_size"], "flow": rec["flow"]},
@@ -230,7 +233,7 @@ def _broken_recordings(rec: dict) -> dict:
 
 
 @pytest.mark.parametrize("name", ["off_sensor_maps", "pickled", "text_flow", "t_maps_2d", "t_maps_seconds",
-                                  "raw_dsec_maps", "empty", "negative_sensor", "fractional_sensor"])
+                                  "t_nanoseconds", "raw_dsec_maps", "empty", "negative_sensor", "fractional_sensor"])
 def test_broken_recordings_are_refused_naming_file_and_field(edge_recording, tmp_path, name):
     from evseg.errors import EvsegError
 
