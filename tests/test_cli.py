@@ -13,6 +13,18 @@ def test_help_lists_subcommands(capsys):
     assert "bench" in out and "eval" in out
 
 
+def test_every_command_has_a_help_page(capsys):
+    # argparse formats each option's help only when asked; a stray % in one crashed --help.
+    from evseg.cli import _command_modules, build_parser
+
+    build_parser()
+    for name in _command_modules():
+        with pytest.raises(SystemExit) as exc:
+            main([name, "--help"])
+        assert exc.value.code == 0, name
+        assert f"usage: evseg {name}" in capsys.readouterr().out
+
+
 def test_user_error_is_one_line_and_exit_2(capsys):
     assert main(["bench", "seg", "--repeats", "0"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
