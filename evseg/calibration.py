@@ -143,6 +143,10 @@ class Calibration:
         pts = pts.reshape(-1, 1, 2)
         if self.model == "equidistant":
             out = cv2.fisheye.undistortPoints(pts, self.K, self.D, None, None, None, _CRITERIA)
+        elif hasattr(cv2, "undistortPointsIter"):
+            # OpenCV 4.x: undistortPoints takes no stopping criteria (its 5 iterations are not
+            # enough); the iterated variant does. OpenCV 5 merged the two.
+            out = cv2.undistortPointsIter(pts, self.K, self.D, None, None, _CRITERIA)
         else:
             out = cv2.undistortPoints(pts, self.K, self.D, None, None, None, _CRITERIA)
         out = out.reshape(-1, 2)

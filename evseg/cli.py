@@ -75,6 +75,25 @@ def _openmp_waits_passively(command: str) -> None:
         os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 
+EXTRAS = {"h5py": "formats", "hdf5plugin": "formats", "rosbags": "formats", "aedat": "formats",
+          "lightning": "train", "jsonargparse": "train", "onnx": "train", "pytest": "test", "hypothesis": "test"}
+"""Top-level module -> the optional dependency group of pyproject.toml that installs it."""
+
+
+def missing_extra_message(exc: ModuleNotFoundError) -> str | None:
+    """What to install for a missing optional dependency, or None for any other missing module
+    (a broken install or a bug, reported as an internal error).
+
+    >>> print(missing_extra_message(ModuleNotFoundError("No module named 'h5py'", name="h5py")))
+    this needs h5py, part of the optional 'formats' dependencies: pip install "evseg[formats]"
+    """
+    top = (exc.name or "").split(".")[0]
+    if top not in EXTRAS:
+        return None
+    extra = EXTRAS[top]
+    return f"this needs {top}, part of the optional '{extra}' dependencies: pip install \"evseg[{extra}]\""
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -95,15 +114,25 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"evseg {args.command}: interrupted", file=sys.stderr)
         return 130
+    except ModuleNotFoundError as exc:
+        message = missing_extra_message(exc)
+        if message is None or args.debug:
+            return _internal_error(args, exc)
+        print(f"evseg {args.command}: error: {message}", file=sys.stderr)
+        return 2
     except Exception as exc:  # a bug in evseg: say so, keep the traceback one flag away
-        if args.debug:
-            raise
-        print(
-            f"evseg {args.command}: internal error: {type(exc).__name__}: {exc} "
-            "(rerun with --debug for the traceback and please report it)",
-            file=sys.stderr,
-        )
-        return 1
+        return _internal_error(args, exc)
+
+
+def _internal_error(args, exc: Exception) -> int:
+    if args.debug:
+        raise exc
+    print(
+        f"evseg {args.command}: internal error: {type(exc).__name__}: {exc} "
+        "(rerun with --debug for the traceback and please report it)",
+        file=sys.stderr,
+    )
+    return 1
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -23,7 +23,6 @@ with 8 looks inside the tracked boxes only (``PipelineConfig.tracked_mirrors``, 
 
 from __future__ import annotations
 
-import os
 import tempfile
 import time
 from dataclasses import replace
@@ -173,7 +172,9 @@ def benchmark(repeats: int = 3, quick: bool = False) -> list[dict]:
 
 
 def _real_recordings(repeats: int) -> list[dict]:
-    shared = Path(os.environ.get("EVSEG_SHARED_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
+    from evseg.train.evaluate import shared_data_dir
+
+    shared = shared_data_dir()
     files = [
         "eed_what_is_background/events_t_us_x_y_on.npy",
         "dvxplorer_person_aedat4/sample.aedat4",

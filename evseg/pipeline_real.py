@@ -240,13 +240,13 @@ def evaluate_pipeline_real(quick: bool = False, flow: str = "learned", slow_edge
     from evseg.errors import EvsegError
     from evseg.segmentation import SegmentationConfig
     from evseg.segmentation.config import with_overrides
-    from evseg.train.evaluate import shared_data_dir
+    from evseg.train.evaluate import missing_shared_data_message, shared_data_dir
 
     with_overrides(SegmentationConfig(), overrides, "evaluate_pipeline_real")  # bad keys fail before any work
 
     root = shared_data_dir()
     if not root.is_dir():
-        raise EvsegError(f"real recordings not found at {root} (set EVSEG_SHARED_DATA)")
+        raise EvsegError(missing_shared_data_message(root))
     labels = root / "emsgc_reference/result_EED/what_is_background/seg_labels"
     track = emsgc_ball_track(labels) if labels.is_dir() else None
     rows, one_motion = [], []

@@ -31,9 +31,9 @@ def test_user_error_is_one_line_and_exit_2(capsys):
     assert err == ["evseg bench: error: --repeats must be at least 1, got 0"]
 
 
-def test_console_script_help_is_fast_and_torch_free():
+def test_console_script_help_is_fast_and_torch_free(tmp_path):
     code = "import sys; from evseg.cli import build_parser; build_parser(); print('torch' in sys.modules)"
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=tmp_path)
     assert out.stdout.strip() == "False"
 
 
@@ -319,3 +319,25 @@ def test_debug_before_the_command_shows_the_traceback(tmp_path, capsys):
         assert "Traceback (most recent call last)" in err and "evseg info: error:" in err, argv
     assert main(["info", str(bad)]) == 2
     assert "Traceback" not in capsys.readouterr().err
+
+
+def test_a_missing_optional_dependency_names_the_extra_to_install(capsys, monkeypatch, tmp_path):
+    """Without the 'formats' extra an HDF5 file is a one-line error with the pip command, not
+    an "internal error ... please report it"."""
+    import builtins
+
+    real_import = builtins.__import__
+
+    def without_h5py(name, *args, **kwargs):
+        if name.split(".")[0] in ("h5py", "hdf5plugin"):
+            raise ModuleNotFoundError(f"No module named '{name}'", name=name)
+        return real_import(name, *args, **kwargs)
+
+    for module in ("h5py", "hdf5plugin", "evseg.io.hdf5"):
+        monkeypatch.delitem(sys.modules, module, raising=False)
+    monkeypatch.setattr(builtins, "__import__", without_h5py)
+    (tmp_path / "x.h5").write_bytes(b"\x89HDF\r\n\x1a\n" + bytes(200))  # the magic bytes, then nothing
+    assert main(["info", str(tmp_path / "x.h5")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("evseg info: error: this needs ") and \
+        err[0].endswith("part of the optional 'formats' dependencies: pip install \"evseg[formats]\""), err

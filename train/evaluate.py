@@ -291,12 +291,21 @@ REAL_RECORDINGS = (
 
 
 def shared_data_dir() -> Path:
+    """The folder of the shared real recordings: ``EVSEG_SHARED_DATA``, else ``../shared/data``
+    beside the repository (a pip install has no such neighbour: set the variable)."""
     import os
 
     env = os.environ.get("EVSEG_SHARED_DATA")
     if env:
         return Path(env)
-    return Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
+    return (Path(__file__).resolve().parents[1] / ".." / "shared" / "data").resolve()
+
+
+def missing_shared_data_message(root: Path) -> str:
+    """The error for a shared data folder that is not there."""
+    return (f"real recordings not found at {root}: set EVSEG_SHARED_DATA to the folder that holds them "
+            f"({', '.join(sorted({r.split('/')[0] for r in REAL_RECORDINGS}))}, ...; by default ../shared/data "
+            "beside a repository checkout)")
 
 
 def recording_slices(events: np.ndarray, slice_us: int, max_slices: int) -> list[tuple[int, int]]:
@@ -391,7 +400,7 @@ def evaluate_flow_real(quick: bool = False, model_path: str | Path | None = None
 
     root = shared_data_dir()
     if not root.is_dir():
-        raise EvsegError(f"real recordings not found at {root} (set EVSEG_SHARED_DATA)")
+        raise EvsegError(missing_shared_data_message(root))
     learned, baseline = _estimators(model_path, mirrors)
     return evaluate_estimators_real(learned, baseline, root, max_windows=5 if quick else 20)
 

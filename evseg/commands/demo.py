@@ -47,7 +47,8 @@ def run(args: argparse.Namespace) -> int:
         threads=args.threads,
         segmentation=load_segmentation_config(SEGMENTATION_PRESET.get(args.preset, "evimo_like")),
     )
-    print(f"segmenting with {args.flow_method} normal flow, 10 ms windows ...")
+    print(f"segmenting with {args.flow_method} normal flow, 10 ms windows ... "
+          "(the first run after installing compiles the encoder's loops: ~30 s, once)")
     ev = evaluate_recording(rec, cfg, keep_results=True)
 
     video = args.out_dir / "segmentation.mp4"

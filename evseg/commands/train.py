@@ -36,7 +36,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         nargs=argparse.REMAINDER,
         required=True,
         metavar="CONFIG.yaml [LIGHTNING OPTIONS]",
-        help="training config (configs/train/default.yaml, quick.yaml); must come last: "
+        help="training config: a YAML file or the name of a shipped one (default, quick, ...: configs/train/ of "
+        "the repository, installed with evseg); must come last: "
         "the options after it go to LightningCLI (evseg train --config FILE --help lists them)",
     )
 
@@ -44,7 +45,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     if not args.config:
         raise ConfigError("--config needs a YAML file")
-    config, rest = args.config[0], args.config[1:]
+    config, rest = resolve_training_config(args.config[0]), _resolve_more_configs(args.config[1:])
     for path in [config, *_more_configs(rest)]:
         check_training_config(path)
     from lightning.fabric.utilities.exceptions import MisconfigurationException
@@ -78,6 +79,45 @@ def _more_configs(rest: list[str]) -> list[str]:
     return out
 
 
+def shipped_training_configs() -> dict[str, Path]:
+    """The training configs installed with evseg (``configs/train`` of the repository), by
+    name: ``{"default": .../default.yaml, "quick": ..., ...}``."""
+    import evseg.configs
+
+    folder = Path(evseg.configs.__file__).parent / "train"
+    return {p.stem: p for p in sorted(folder.glob("*.yaml"))}
+
+
+def resolve_training_config(value: str) -> str:
+    """``value`` when it is a file; else the shipped training config it names: ``quick``,
+    ``quick.yaml`` or the README's ``configs/train/quick.yaml`` run outside the repository
+    (a pip install has no ``configs/`` folder). Anything else is returned as it is, for
+    :func:`check_training_config` to report.
+
+    >>> Path(resolve_training_config("quick")).name
+    'quick.yaml'
+    """
+    path = Path(value)
+    if path.exists():
+        return value
+    stem = path.name[:-len(".yaml")] if path.name.endswith(".yaml") else path.name
+    shipped = shipped_training_configs()
+    if stem in shipped and path.parent in (Path("."), Path("configs/train")):
+        return str(shipped[stem])
+    return value
+
+
+def _resolve_more_configs(rest: list[str]) -> list[str]:
+    """``rest`` with the files of further ``--config`` options resolved as the first one."""
+    out = list(rest)
+    for i, arg in enumerate(out):
+        if arg in ("--config", "-c") and i + 1 < len(out):
+            out[i + 1] = resolve_training_config(out[i + 1])
+        elif arg.startswith("--config="):
+            out[i] = "--config=" + resolve_training_config(arg.split("=", 1)[1])
+    return out
+
+
 def check_training_config(path: str) -> None:
     """Raise :class:`ConfigError` naming ``--config`` and ``path`` unless it is a readable YAML
     file holding a mapping (LightningCLI would otherwise fail with a decoding traceback, e.g. on
@@ -88,7 +128,8 @@ def check_training_config(path: str) -> None:
 
     p = Path(path)
     if not p.is_file():
-        raise ConfigError(f"--config: file not found: {path}")
+        names = ", ".join(shipped_training_configs())
+        raise ConfigError(f"--config: file not found: {path} (the shipped configs, by name: {names})")
     try:
         doc = yaml.safe_load(p.read_text(encoding="utf-8"))
     except UnicodeDecodeError:

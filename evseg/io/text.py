@@ -85,9 +85,10 @@ def _is_bool(tok: bytes) -> bool:
     return tok.strip().lower() in (b"true", b"false")
 
 
-def _polarity_value(tok: str) -> float:
-    """A polarity token as a number: ``True`` / ``False`` (any case) as 1 / 0, else the number."""
-    low = tok.strip().lower()
+def _polarity_value(tok: str | bytes) -> float:
+    """A polarity token as a number: ``True`` / ``False`` (any case) as 1 / 0, else the number.
+    (numpy 2's loadtxt hands converters str, numpy 1's bytes.)"""
+    low = (tok.decode("ascii", "replace") if isinstance(tok, bytes) else tok).strip().lower()
     return 1.0 if low == "true" else 0.0 if low == "false" else float(tok)
 
 

@@ -11,8 +11,6 @@ from the scene config, seed and duration.
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 import zipfile
 from pathlib import Path
 
@@ -30,28 +28,23 @@ _KEYS = ("events", "label", "flow", "normal_flow", "object_ids", "sensor_size", 
 def save_recording(rec: SimulatedRecording, path: str | Path) -> Path:
     """Write ``rec`` to ``path`` (.npz, compressed) atomically: a temporary file in the same
     folder is renamed over the target, so a crash never leaves a half-written file."""
+    from evseg.io._atomic import atomic_path
+
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            np.savez_compressed(
-                fh,
-                events=rec.stream.events,
-                label=rec.label,
-                flow=rec.flow,
-                normal_flow=rec.normal_flow,
-                object_ids=np.asarray(rec.object_ids, np.int32),
-                sensor_size=np.asarray(rec.stream.sensor_size, np.int64),
-                seed=np.int64(rec.seed),
-                duration_us=np.int64(rec.duration_us),
-                scene_config=np.array(scene_to_json(rec.config)),
-                format=np.array(FORMAT),
-            )
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:  # the usual permissions, not mkstemp's 0600
+        np.savez_compressed(
+            fh,
+            events=rec.stream.events,
+            label=rec.label,
+            flow=rec.flow,
+            normal_flow=rec.normal_flow,
+            object_ids=np.asarray(rec.object_ids, np.int32),
+            sensor_size=np.asarray(rec.stream.sensor_size, np.int64),
+            seed=np.int64(rec.seed),
+            duration_us=np.int64(rec.duration_us),
+            scene_config=np.array(scene_to_json(rec.config)),
+            format=np.array(FORMAT),
+        )
     return path
 
 

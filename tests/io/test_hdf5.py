@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
-import h5py
 import numpy as np
 import pytest
+
+h5py = pytest.importorskip("h5py", reason="the 'formats' extra (pip install -e \".[formats]\")")
 
 from evfiles import sample_events
 from evseg.errors import FormatError

@@ -121,7 +121,8 @@ def test_real_sigint_to_a_running_segment(tmp_path, sim_files, full_run):
     cmd = [sys.executable, "-c", CHILD.format(n=N_DONE), "segment", str(recording), "--flow", str(flow),
            "--out", str(out), "--no-progress"]
     env = dict(os.environ, OMP_NUM_THREADS="1")
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+                            cwd=tmp_path)  # not the repository root, whose ./evseg would shadow an installed one
     try:
         assert proc.stdout.readline().strip() == "ready"
         proc.send_signal(signal.SIGINT)

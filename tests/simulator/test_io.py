@@ -26,7 +26,19 @@ def test_round_trip_keeps_events_ground_truth_config_and_masks(rec, tmp_path):
     for t in (0, 9_000, 19_999):
         np.testing.assert_array_equal(back.object_masks(t), rec.object_masks(t))
         assert back.object_boxes(t) == rec.object_boxes(t)
-    assert not list(tmp_path.glob("*.tmp"))  # atomic write left nothing behind
+    assert not list(tmp_path.glob("*.tmp")) and not list(tmp_path.glob(".*.tmp"))  # atomic write left nothing behind
+
+
+def test_saved_file_gets_the_usual_permissions(rec, tmp_path):
+    # mkstemp's temporary file is 0600: a recording others on the machine could not read.
+    import os
+
+    old = os.umask(0o022)
+    try:
+        path = save_recording(rec, tmp_path / "sim.npz")
+    finally:
+        os.umask(old)
+    assert path.stat().st_mode & 0o777 == 0o644
 
 
 def test_saved_file_is_a_plain_event_npz(rec, tmp_path):

@@ -6,6 +6,9 @@ import pytest
 from evseg.simulator.motion import AffineTrajectory, sample_trajectory
 from evseg.simulator.scene import MotionConfig
 
+# numpy 2 renamed trapz to trapezoid; the project allows numpy >= 1.24.
+_trapezoid = getattr(np, "trapezoid", None) or getattr(np, "trapz")
+
 TRAJ = AffineTrajectory(
     c0=(10.0, -4.0), v_mean=(120.0, -40.0), v_amp=(30.0, 15.0), v_hz=(2.0, 0.7), v_phase=(0.3, 1.1),
     omega_mean=0.8, omega_amp=0.3, omega_hz=1.5, omega_phase=0.2,
@@ -31,9 +34,9 @@ def test_flow_is_the_derivative_of_the_image_position_of_layer_points(t):
 def test_integrals_of_rates_match_numerical_quadrature():
     t = np.linspace(0, 0.8, 8001)
     v = TRAJ.velocity(t)
-    dx = np.trapezoid(v, t, axis=0) if hasattr(np, "trapezoid") else np.trapz(v, t, axis=0)
+    dx = _trapezoid(v, t, axis=0)
     np.testing.assert_allclose(TRAJ.center(0.8) - TRAJ.center(0.0), dx, rtol=1e-6)
-    np.testing.assert_allclose(TRAJ.theta(0.8) - TRAJ.theta(0.0), np.trapezoid(TRAJ.omega(t), t), rtol=1e-6)
+    np.testing.assert_allclose(TRAJ.theta(0.8) - TRAJ.theta(0.0), _trapezoid(TRAJ.omega(t), t), rtol=1e-6)
 
 
 def test_zero_frequency_wobble_is_a_constant_offset():

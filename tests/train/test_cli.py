@@ -10,14 +10,15 @@ import subprocess
 import sys
 from pathlib import Path
 
-# Imported at collection: Lightning's log handler then binds to the session's stderr, not to
-# the stderr of the first test's capsys (closed after that test).
-import lightning.pytorch  # noqa: F401
 import pytest
 import yaml
 
 from evseg.cli import main as evseg_main
 from evseg.veckm_flow.model import load_head_checkpoint
+
+# Imported at collection: Lightning's log handler then binds to the session's stderr, not to
+# the stderr of the first test's capsys (closed after that test).
+pytest.importorskip("lightning.pytorch", reason="the 'train' extra (pip install -e \".[train]\")")
 
 REPO = Path(__file__).resolve().parents[2]
 QUICK = REPO / "configs" / "train" / "quick.yaml"
@@ -251,3 +252,20 @@ def test_a_config_that_is_no_yaml_is_one_line(tmp_path, capsys):
     (tmp_path / "list.yaml").write_text("- a\n- b\n")
     assert evseg_main(["train", "--config", str(QUICK), "--config", str(tmp_path / "list.yaml")]) == 2
     assert "list.yaml: a training config is a YAML mapping" in capsys.readouterr().err
+
+
+def test_shipped_training_configs_are_found_by_name_outside_the_repository(tmp_path, monkeypatch, capsys):
+    """A pip install has no configs/ folder: `--config quick` (or the README's
+    configs/train/quick.yaml, run elsewhere) means the installed copy."""
+    from evseg.commands.train import resolve_training_config
+
+    monkeypatch.chdir(tmp_path)
+    for value in ("quick", "quick.yaml", "configs/train/quick.yaml"):
+        resolved = Path(resolve_training_config(value))
+        assert resolved.is_file() and resolved.read_bytes() == QUICK.read_bytes(), value
+    (tmp_path / "quick.yaml").write_text("trainer: {}\n")  # a file of the user's wins
+    assert resolve_training_config("quick.yaml") == "quick.yaml"
+    assert evseg_main(["train", "--config", "nope"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("evseg train: error: --config: file not found: nope (the shipped configs, by name: ")
+    assert "default, " in err and "quick" in err

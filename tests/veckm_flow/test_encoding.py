@@ -267,7 +267,8 @@ def test_features_are_the_same_compiled_fresh_and_loaded_from_numba_cache(tmp_pa
     outs = []
     for run in ("fresh", "cached"):
         out = tmp_path / f"{run}.npy"
-        subprocess.run([sys.executable, "-c", _FRESH_OR_CACHED, str(out)], env=env, check=True, timeout=300)
+        subprocess.run([sys.executable, "-c", _FRESH_OR_CACHED, str(out)], env=env, check=True, timeout=300,
+                       cwd=tmp_path)  # not the repository root, whose ./evseg would shadow an installed one
         outs.append(np.load(out))
         if run == "fresh":  # otherwise the second run would compile afresh too and prove nothing
             assert list((tmp_path / "numba_cache").rglob("*window_features*.nbi"))

@@ -11,13 +11,14 @@ from evseg.veckm_flow import OnnxNormalFlow, encode_targets, head_output_to_flow
 from evseg.veckm_flow.synthetic import translating_edges
 
 
-def test_inference_module_does_not_import_torch():
+def test_inference_module_does_not_import_torch(tmp_path):
     code = (
         "import sys, evseg.veckm_flow.inference, evseg.veckm_flow; "
         "from evseg.veckm_flow import OnnxNormalFlow, PlaneFitNormalFlow, encode_targets; "
         "print('torch' in sys.modules)"
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    # cwd: from the repository root, ./evseg would shadow an installed (non-editable) evseg
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=tmp_path)
     assert out.stdout.strip() == "False"
 
 
