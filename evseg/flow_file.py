@@ -42,6 +42,22 @@ FLOW_KEYS = ("index", "nx", "ny")
 """Keys every flow file and every ``precomputed_flow`` mapping must have."""
 OPTIONAL_FLOW_KEYS = ("uncertainty",)
 
+_UNCERTAINTY_NAMES = ("unc", "uncert", "uncertainties", "sigma", "std", "confidence", "conf", "var", "variance")
+"""Keys a user may have meant as ``uncertainty``: refused (the flow would silently count as exact)."""
+
+
+def _misnamed_key(key: str) -> str | None:
+    """The flow key ``key`` most likely means (a misspelling such as ``uncertainity``, or another
+    name for the uncertainty), or None for a key that is simply extra (``t``, ``x``, metadata)."""
+    import difflib
+
+    if key in FLOW_KEYS + OPTIONAL_FLOW_KEYS:
+        return None
+    if key.lower() in _UNCERTAINTY_NAMES:
+        return "uncertainty"
+    close = difflib.get_close_matches(key.lower(), FLOW_KEYS + OPTIONAL_FLOW_KEYS, n=1, cutoff=0.75)
+    return close[0] if close and close[0] != key else None
+
 
 def check_flow(data: Mapping, n_events: int | None = None, source: str = "precomputed flow",
                error: type[EvsegError] = EvsegError) -> dict[str, np.ndarray]:
@@ -49,11 +65,21 @@ def check_flow(data: Mapping, n_events: int | None = None, source: str = "precom
     modified, and its arrays are shared, not copied, where they are already in order and of
     these dtypes): ``index`` int64, ``nx``, ``ny`` (and ``uncertainty`` when given) float32.
 
-    Raises ``error`` naming ``source``, the key and the value when a key is missing, an array
-    is not 1-D numbers, the lengths differ, an index is negative, repeated or (with
-    ``n_events``) past the recording's last event, or an uncertainty is negative. Other keys
-    are ignored.
+    Raises ``error`` naming ``source``, the key and the value when a key is missing or
+    misspelt (``uncertainity``, ``sigma``: a flow whose uncertainty is silently dropped counts
+    as exact), an array is not 1-D numbers, the lengths differ, an index is negative, repeated
+    or (with ``n_events``) past the recording's last event, or an uncertainty is negative.
+    Other keys (``t``, ``x``, metadata) are ignored.
     """
+    if not isinstance(data, Mapping):
+        hint = (" (a file: load_flow_file(path) reads it)" if isinstance(data, (str, Path)) else "")
+        raise error(f"{source}: expected a mapping of arrays index, nx, ny[, uncertainty], got "
+                    f"{type(data).__name__}{hint}")
+    for key in data:
+        meant = _misnamed_key(str(key))
+        if meant is not None and meant not in data:
+            raise error(f"{source}: key '{key}' is not a flow key; did you mean '{meant}'? "
+                        "(keys: index, nx, ny[, uncertainty: the expected angular error, rad])")
     for key in FLOW_KEYS:
         if key not in data or data[key] is None:
             raise error(f"{source}: no key '{key}' (expected index, nx, ny[, uncertainty])")

@@ -433,17 +433,20 @@ class MotionSegmentationPipeline:
             inside = None
             if tracked_est is not None and boxes is not None and len(boxes) and len(targets):
                 inside = self._in_tracked_boxes(events, targets, boxes)
-            # Flow is estimated in raw sensor pixels; undistortion happens after (_prepare()).
+            # With a calibration the estimator encodes undistorted positions and returns flow on the
+            # sensor grid, as `evseg flow` does; positions and flows are undistorted after (_prepare()).
+            calibration = self.calibration
             if inside is None or not inside.any():
-                flow = flow_with_context(est, events, sensor_size, targets, kept, history=history)
+                flow = flow_with_context(est, events, sensor_size, targets, kept, calibration, history=history)
                 self._flow_split = dict(getattr(est, "last_timing_s", None) or {})
                 return flow
             # Each target's flow does not depend on the other targets: two calls give the
             # flows one call with each look count would.
-            rest = flow_with_context(est, events, sensor_size, targets[~inside], kept, history=history)
+            rest = flow_with_context(est, events, sensor_size, targets[~inside], kept, calibration, history=history)
             split = dict(est.last_timing_s)
             t_tracked = time.perf_counter()
-            tracked = flow_with_context(tracked_est, events, sensor_size, targets[inside], kept, history=history)
+            tracked = flow_with_context(tracked_est, events, sensor_size, targets[inside], kept, calibration,
+                                        history=history)
             for part, seconds in tracked_est.last_timing_s.items():
                 split[part] = split.get(part, 0.0) + seconds
             split["tracked"] = time.perf_counter() - t_tracked

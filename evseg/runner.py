@@ -32,6 +32,7 @@ class SegmentJob:
     sort: bool = False
     time_unit: str | None = None
     config: str | None = None
+    overrides: dict | None = None  # segmentation fields set on top of `config` (--set FIELD=VALUE)
     window_ms: float = 10.0
     stride_ms: float | None = None
     flow_context_ms: float = 20.0
@@ -103,6 +104,10 @@ def build_pipeline_config(job: SegmentJob):
         if not job.max_lag_ms >= 0:
             raise ConfigError(f"--max-lag-ms must be >= 0, got {job.max_lag_ms}")
     seg = load_segmentation_config(job.config) if job.config else SegmentationConfig()
+    if job.overrides:
+        from evseg.segmentation.config import with_overrides
+
+        seg = with_overrides(seg, job.overrides, "--set")
     return PipelineConfig(
         window_us=int(round(job.window_ms * 1000)),
         stride_us=None if job.stride_ms is None else int(round(job.stride_ms * 1000)),
@@ -130,6 +135,10 @@ def _check_flow_options(job: SegmentJob) -> None:
                     ("--no-fast-edges", not job.fast_edges),
                     ("--tracked-max-targets", job.tracked_max_targets is not None)]
     given = [name for name, on in learned_only if on]
+    estimator_only = [("--flow-context-ms", job.flow_context_ms != SegmentJob.flow_context_ms),
+                      ("--threads", job.threads is not None)]
+    if job.flow_file is not None:
+        given += [name for name, on in estimator_only if on]
     if job.flow_file is not None and (given or job.flow_method != "learned"):
         other = given[0] if given else "--flow-method"
         raise ConfigError(f"--flow and {other} exclude each other: {other} is about the normal flow evseg "

@@ -320,7 +320,8 @@ class SegmentationConfig:
                      "residual_scale_rel", "residual_scale_noise", "lambda_p", "lambda_m",
                      "lm_damping", "mask_dilate_px", "merge_tol", "split_gap_px", "occlusion_gap_px",
                      "uncertainty_gain", "uncertainty_angle_gain", "affine_prior_px", "max_object_parts",
-                     "tracked_label_cost", "support_exponent", "contrast_max_noise"):
+                     "tracked_label_cost", "support_exponent", "contrast_max_noise", "n_sampled_with_prediction",
+                     "min_object_nodes", "min_prediction_nodes", "prediction_margin_px"):
             if getattr(self, name) < 0:
                 raise ConfigError(f"SegmentationConfig.{name} must be >= 0, got {getattr(self, name)}")
         if not 0 < self.contrast_min_weight <= 1:
@@ -329,7 +330,8 @@ class SegmentationConfig:
                      "max_propagation_px", "model_tol_px_s", "still_px_s"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"SegmentationConfig.{name} must be > 0, got {getattr(self, name)}")
-        for name in ("max_rounds", "expansion_cycles", "lm_iterations", "n_sampled", "min_cell_events"):
+        for name in ("max_rounds", "expansion_cycles", "lm_iterations", "n_sampled", "min_cell_events",
+                     "max_object_parts"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"SegmentationConfig.{name} must be >= 1, got {getattr(self, name)}")
         if self.residual_scale_px_s == 0 and self.residual_scale_rel == 0:
@@ -337,6 +339,9 @@ class SegmentationConfig:
         if self.max_nodes is not None and (isinstance(self.max_nodes, bool) or int(self.max_nodes) != self.max_nodes
                                            or self.max_nodes < 1):
             raise ConfigError(f"SegmentationConfig.max_nodes must be a positive integer or None, got {self.max_nodes!r}")
+        if self.max_uncertainty is not None and not self.max_uncertainty > 0:
+            raise ConfigError(f"SegmentationConfig.max_uncertainty must be > 0 or None (keep every flow), got "
+                              f"{self.max_uncertainty!r}: no flow would be kept")
         if self.node_window_us is not None and not self.node_window_us > 0:
             raise ConfigError(f"SegmentationConfig.node_window_us must be > 0 (us) or None, got {self.node_window_us!r}")
         if self.origin_px is not None:
@@ -353,6 +358,7 @@ def _check_choice(name: str, value: str, choices: tuple[str, ...]) -> None:
 
 
 _OPTIONAL_FIELDS = ("node_window_us", "max_uncertainty", "origin_px", "max_nodes")
+_OPTIONAL_INT_FIELDS = ("node_window_us", "max_nodes")  # None or a whole number
 
 
 def _check_type(cfg: "SegmentationConfig", f: dataclasses.Field) -> None:
@@ -369,7 +375,7 @@ def _check_type(cfg: "SegmentationConfig", f: dataclasses.Field) -> None:
         if isinstance(value, np.bool_):
             value = bool(value)
         bad = not isinstance(value, bool)
-    elif isinstance(default, int) or f.name == "max_nodes":
+    elif isinstance(default, int) or f.name in _OPTIONAL_INT_FIELDS:
         bad = not is_whole(value)
         if not bad:
             value = int(value)
@@ -381,7 +387,8 @@ def _check_type(cfg: "SegmentationConfig", f: dataclasses.Field) -> None:
     elif isinstance(default, str):
         bad = not isinstance(value, str)
     if bad:
-        kind = type(default).__name__ if default is not None else "number"
+        kind = (type(default).__name__ if default is not None
+                else "int" if f.name in _OPTIONAL_INT_FIELDS else "number")
         raise ConfigError(f"SegmentationConfig.{f.name} must be {'an' if kind == 'int' else 'a'} {kind}, got {value!r}")
     object.__setattr__(cfg, f.name, value)
 
@@ -431,11 +438,18 @@ def _coerce(key: str, value, default, source: str):
         return value
     if kind is float and isinstance(value, (int, float)):
         return float(value)
-    if kind is int and isinstance(value, int):
-        return value
+    if kind is int and is_whole(value):  # 8000.0, as a stored config may write a count
+        return int(value)
     if kind is str and isinstance(value, str):
         return value
-    raise ConfigError(f"{source}: field '{key}' must be {kind.__name__}, got {value!r}")
+    hint = ""
+    if isinstance(value, str) and kind in (int, float):
+        try:
+            float(value)
+            hint = " (YAML 1.1 reads a number like 1e2 as text: write 1.0e2 or 100.0)"
+        except ValueError:
+            pass
+    raise ConfigError(f"{source}: field '{key}' must be {kind.__name__}, got {value!r}{hint}")
 
 
 def preset_names() -> list[str]:
@@ -466,8 +480,10 @@ def with_overrides(cfg: SegmentationConfig, overrides: dict | None, where: str) 
         raise ConfigError(f"{where}: {exc}") from None
 
 
-def load_segmentation_config(name_or_path: str | Path) -> SegmentationConfig:
-    """Load a preset by name ('evimo_like') or a YAML file path into a SegmentationConfig.
+def load_segmentation_config(name_or_path) -> SegmentationConfig:
+    """Load a preset by name ('evimo_like') or a YAML file path into a SegmentationConfig (a
+    config, a mapping of its fields or None are taken as :func:`as_segmentation_config` takes
+    them; an existing file without an extension is read as YAML).
 
     The YAML holds a flat mapping of SegmentationConfig fields; missing fields keep their
     defaults, unknown fields raise :class:`ConfigError` naming the file and the field. The
@@ -476,11 +492,18 @@ def load_segmentation_config(name_or_path: str | Path) -> SegmentationConfig:
     """
     import yaml
 
+    if not isinstance(name_or_path, (str, Path)):
+        # A config, a mapping or None: what the pipeline's `segmentation=` takes as well.
+        return as_segmentation_config(name_or_path, source="load_segmentation_config")
     path = Path(name_or_path)
-    if not path.suffix:
-        path = _PRESET_DIR / f"{name_or_path}.yaml"
-        if not path.is_file():
-            raise ConfigError(f"unknown segmentation preset '{name_or_path}'; presets: {preset_names()}")
+    if not path.suffix and not path.is_file():  # a preset name (a file of that name wins)
+        preset = _PRESET_DIR / f"{name_or_path}.yaml"
+        if not preset.is_file():
+            what = "a folder, and no" if path.is_dir() else "no such file, and no"
+            raise ConfigError(f"{name_or_path}: {what} segmentation preset of that name; presets: {preset_names()}")
+        path = preset
+    if path.is_dir():
+        raise ConfigError(f"{path}: is a folder, not a segmentation config file (YAML)")
     if not path.is_file():
         raise ConfigError(f"segmentation config file not found: {path}")
     if path.suffix.lower() == ".npz":

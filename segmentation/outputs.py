@@ -332,17 +332,23 @@ def nearest_node_index(
         if np.ndim(a) != 1 or np.shape(a) != np.shape(b):
             raise EventDataError(f"nearest node: {what} must be 1-D of one length, got shapes "
                                  f"{np.shape(a)} and {np.shape(b)}")
-    if not (np.isfinite(x).all() and np.isfinite(y).all()):
-        raise EventDataError("nearest node: the points' x and y must be finite positions (px)")
+    for a, b, what in ((x, y, "the points'"), (node_x, node_y, "the nodes'")):
+        if not (np.isfinite(a).all() and np.isfinite(b).all()):
+            raise EventDataError(f"nearest node: {what} x and y must be finite positions (px)")
     if not float(max_distance_px) >= 0:
         raise EventDataError(f"nearest node: max_distance_px must be >= 0 px, got {max_distance_px}")
     if len(node_x) == 0 or len(x) == 0:
         return np.full(len(x), -1, dtype=np.int64)
+    node_x = np.ascontiguousarray(node_x, dtype=np.float64)
+    node_y = np.ascontiguousarray(node_y, dtype=np.float64)
+    # No two positions lie farther apart than the diagonal of their joint extent: a larger
+    # radius (inf: no limit) searches the same, and an infinite one would size no grid.
+    span = np.hypot(max(x.max(), node_x.max()) - min(x.min(), node_x.min()),
+                    max(y.max(), node_y.max()) - min(y.min(), node_y.min()))
+    reach = min(float(max_distance_px), float(span) + 1.0)
     # Buckets of a third of the search radius: a query scans at most 5 rings of cells.
-    bucket = max(float(max_distance_px) / 3.0, 1.0)
-    return np.asarray(grid_nearest(np.ascontiguousarray(node_x, dtype=np.float64),
-                                   np.ascontiguousarray(node_y, dtype=np.float64), x, y,
-                                   float(max_distance_px), bucket), dtype=np.int64)
+    bucket = max(reach / 3.0, 1.0)
+    return np.asarray(grid_nearest(node_x, node_y, x, y, reach, bucket), dtype=np.int64)
 
 
 def labels_of_nearest(node_labels: np.ndarray, nearest: np.ndarray) -> np.ndarray:

@@ -353,9 +353,18 @@ def build_node_graph(
     idx = _select_among(cand, x, y, t, nx, ny, uncertainty, cell_px, cell_rule)
     xs = np.asarray(x, dtype=np.float64)[idx]
     ys = np.asarray(y, dtype=np.float64)[idx]
+    given = event_xy is not None
     if event_xy is None:
         event_xy = (np.asarray(x, dtype=np.float64)[cand], np.asarray(y, dtype=np.float64)[cand])
     support = cell_support(xs, ys, event_xy[0], event_xy[1], cell_px)
+    if given and len(support) and np.median(support) == 0:
+        from evseg.errors import EventDataError
+
+        # Each node's own event lies in its cell: event_xy is not this window's events.
+        raise EventDataError(
+            f"event_xy: {int((support == 0).sum())} of the {len(support)} node cells hold none of its "
+            f"{len(event_xy[0])} positions; give the positions (px) of all the window's events, those of the flows "
+            "included")
     if min_cell_events > 1:
         kept = support >= min_cell_events
         idx, xs, ys, support = idx[kept], xs[kept], ys[kept], support[kept]

@@ -60,6 +60,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from evseg.errors import ConfigError
 from evseg.segmentation.config import SegmentationConfig
 from evseg.segmentation.energy import contrast_weights, energy
 from evseg.segmentation.expansion import alpha_expansion
@@ -180,11 +181,38 @@ def segment_normal_flow(
 
     Raises:
         EventDataError: arrays of different lengths or not 1-D, a position that is NaN or
-            infinite, a time that is not whole microseconds (seconds would all fall into one
+            infinite or far off the sensor (more than a quarter of its size), a time that is not whole microseconds (seconds would all fall into one
             microsecond), a negative uncertainty; the message names the argument and the row.
     """
+    _check_on_sensor(x, y, sensor_size)
     prepared = prepare_window(x, y, t, nx, ny, uncertainty, config, sensor_size, event_xy)
     return segment_prepared(prepared, previous, tracked_objects)
+
+
+OFF_SENSOR_MARGIN = 0.25
+"""How far (a share of the sensor's width / height) :func:`segment_normal_flow` lets positions
+lie beyond the sensor: undistorted positions do, a little; farther means another frame."""
+
+
+def _check_on_sensor(x, y, sensor_size) -> None:
+    """Refuse flow positions far off the ``sensor_size`` grid: a swapped (height, width) or
+    positions of another frame gave boxes clipped to the border and lost objects, silently."""
+    from evseg.errors import EventDataError
+    from evseg.events import checked_sensor_size
+
+    if sensor_size is None or len(np.asarray(x)) == 0:
+        return
+    w, h = checked_sensor_size(sensor_size)
+    for name, a, size in (("x", x, w), ("y", y, h)):
+        a = np.asarray(a, dtype=np.float64)
+        lo, hi = -OFF_SENSOR_MARGIN * size, (1 + OFF_SENSOR_MARGIN) * size
+        bad = np.flatnonzero((a < lo) | (a > hi))
+        if len(bad):
+            i = int(bad[0])
+            raise EventDataError(
+                f"segment_normal_flow: '{name}' = {a[i]:g} at row {i} lies far off the {w}x{h} sensor "
+                f"(sensor_size is (width, height); positions may stray {OFF_SENSOR_MARGIN:.0%} of it beyond the "
+                "edges, as undistorted ones do; pass sensor_size=None for positions in another frame)")
 
 
 def _check_window_arrays(x, y, t, nx, ny, uncertainty) -> None:
@@ -199,8 +227,8 @@ def _check_window_arrays(x, y, t, nx, ny, uncertainty) -> None:
         a = np.asarray(a)
         if a.ndim != 1 or len(a) != n:
             raise EventDataError(f"segment_normal_flow: '{name}' has shape {a.shape}, expected ({n},) like 'x'")
-        if not np.issubdtype(a.dtype, np.number):
-            raise EventDataError(f"segment_normal_flow: '{name}' must hold numbers, got dtype {a.dtype}")
+        if not np.issubdtype(a.dtype, np.number) or np.issubdtype(a.dtype, np.complexfloating):
+            raise EventDataError(f"segment_normal_flow: '{name}' must hold real numbers, got dtype {a.dtype}")
     for name in ("x", "y"):
         a = np.asarray(arrays[name], dtype=np.float64)
         if n and not np.isfinite(a).all():
@@ -224,6 +252,24 @@ def _check_window_arrays(x, y, t, nx, ny, uncertainty) -> None:
             raise EventDataError(f"segment_normal_flow: 'uncertainty' is NaN at row {i} (inf marks a flow to ignore)")
 
 
+def _tracked(tracked_objects) -> tuple[np.ndarray, np.ndarray, float]:
+    """``(boxes (K, 4), models (K, 4), 0.0)`` of a ``tracked_objects`` pair, checked."""
+    try:
+        boxes, models = tracked_objects
+        boxes, models = np.asarray(boxes, dtype=np.float64), np.asarray(models, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ConfigError("segment: tracked_objects must be a pair (boxes (K, 4), models (K, 4)) of numbers") from None
+    for name, a in (("boxes", boxes), ("models", models)):
+        if a.size and (a.ndim != 2 or a.shape[1] != 4):
+            raise ConfigError(f"segment: tracked_objects {name} must be (K, 4), got shape {a.shape}")
+    boxes, models = boxes.reshape(-1, 4), models.reshape(-1, 4)
+    if len(boxes) != len(models):
+        raise ConfigError(f"segment: tracked_objects has {len(boxes)} boxes and {len(models)} models")
+    if not (np.isfinite(boxes).all() and np.isfinite(models).all()):
+        raise ConfigError("segment: tracked_objects boxes and models must be finite")
+    return boxes, models, 0.0
+
+
 def segment_prepared(
     prepared: PreparedWindow,
     previous: SegmentationResult | None = None,
@@ -245,9 +291,11 @@ def segment_prepared(
     # Objects to predict: the caller's tracks (boxes already at this window) or the previous
     # window's objects (boxes moved here by their models over the time between the windows).
     expected = None
+    if previous is not None and not isinstance(previous, SegmentationResult):
+        raise ConfigError(f"segment: previous must be the previous window's SegmentationResult or None, got "
+                          f"{type(previous).__name__}")
     if tracked_objects is not None:
-        expected = (np.asarray(tracked_objects[0], dtype=np.float64).reshape(-1, 4),
-                    np.asarray(tracked_objects[1], dtype=np.float64).reshape(-1, 4), 0.0)
+        expected = _tracked(tracked_objects)
     elif previous is not None and previous.n_objects > 0 and previous.origin_px == origin and previous.boxes:
         ids = sorted(previous.boxes)
         expected = (np.array([previous.boxes[k] for k in ids], dtype=np.float64), previous.models[ids],

@@ -168,3 +168,30 @@ def test_writers_refuse_a_folder_before_writing(tmp_path):
         save_flow_file(tmp_path / "out.npz", np.array([0]), np.array([1.0]), np.array([0.0]))
     with pytest.raises(EvsegError, match="is a folder"):
         write_npz(EventStream(make_events([0], [0], [0], [1]), (4, 4)), tmp_path / "out.npz")
+
+
+@pytest.mark.parametrize("key, meant", [("uncertainity", "uncertainty"), ("sigma", "uncertainty"),
+                                        ("Confidence", "uncertainty"), ("idx", "index"), ("n_x", "nx")])
+def test_a_misnamed_flow_key_is_refused_not_ignored(tmp_path, key, meant):
+    # A misspelt uncertainty was dropped silently: the flow then counted as exact, and the
+    # segmentation reported 15 objects instead of 3 on a simulated recording.
+    flow = {"index": np.array([0, 1]), "nx": np.array([1.0, 2.0]), "ny": np.array([0.0, 0.0]),
+            "uncertainty": np.array([0.1, 0.1])}
+    flow[key] = flow.pop(meant)
+    with pytest.raises(EvsegError, match=rf"precomputed flow: key '{key}' is not a flow key; did you mean '{meant}'\?"):
+        check_flow(flow)
+    np.savez(tmp_path / "f.npz", **flow)
+    with pytest.raises(FormatError, match=rf"f.npz: key '{key}' is not a flow key"):
+        load_flow_file(tmp_path / "f.npz")
+
+
+def test_extra_keys_that_mean_nothing_else_are_kept_out_of_the_way():
+    flow = check_flow({"index": np.array([0]), "nx": np.array([1.0]), "ny": np.array([0.0]),
+                       "t": np.array([5]), "x": np.array([1]), "sensor_size": np.array([4, 4])})
+    assert sorted(flow) == ["index", "nx", "ny"]
+
+
+def test_a_path_where_the_arrays_belong_points_to_load_flow_file():
+    with pytest.raises(EvsegError, match=r"precomputed flow: expected a mapping of arrays index, nx, ny\[, uncertainty\], "
+                                         r"got str \(a file: load_flow_file\(path\) reads it\)"):
+        check_flow("flow.npz")

@@ -38,6 +38,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="segmentation preset name or YAML file; or a result.npz (or the config it stores) whose "
                         "segmentation settings to reuse (window, flow and the other options come from this "
                         "command line)")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="FIELD=VALUE",
+                   help="a segmentation field on top of --config (or the defaults), repeatable: --config eed_like "
+                        "--set max_nodes=12000 (fields: README, Segmentation, Parameters)")
     p.add_argument("--window-ms", type=float, default=10.0, help="window duration (ms)")
     p.add_argument("--stride-ms", type=float, default=None, help="time between windows (ms); default = window")
     p.add_argument("--flow-context-ms", type=float, default=20.0,
@@ -97,6 +100,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from evseg.commands.eval import parse_overrides
     from evseg.errors import ConfigError
     from evseg.runner import SegmentJob, run_segment_job
 
@@ -119,6 +123,7 @@ def run(args: argparse.Namespace) -> int:
         sort=args.sort,
         time_unit=args.time_unit,
         config=args.config,
+        overrides=parse_overrides(args.overrides),
         window_ms=args.window_ms,
         stride_ms=args.stride_ms,
         flow_context_ms=args.flow_context_ms,

@@ -183,6 +183,8 @@ def test_flow_of_another_sensor_is_refused(recording, tmp_path, capsys):
     (["--mirrors", "8"], "--flow and --mirrors exclude each other"),
     (["--model", "m.onnx"], "--flow and --model exclude each other"),
     (["--flow-method", "planefit"], "--flow and --flow-method exclude each other"),
+    (["--flow-context-ms", "40"], "--flow and --flow-context-ms exclude each other"),
+    (["--threads", "2"], "--flow and --threads exclude each other"),
     (["--speed", "2"], "--speed sets the replay of --realtime: give --realtime too"),
     (["--max-lag-ms", "5"], "--max-lag-ms sets the replay of --realtime: give --realtime too"),
     (["--threads", "0"], "--threads must be at least 1, got 0"),
@@ -256,3 +258,18 @@ def test_flow_colour_scale_is_checked_before_any_work(value, recording, tmp_path
                    "--max-px-s", value)
     assert rc == 2 and len(err) == 1 and "--max-px-s must be a positive number (px/s), got" in err[0], err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["flow.npz", "rec.npz"]  # nothing written or left
+
+
+def test_set_overrides_a_preset_field_and_the_result_records_it(recording, tmp_path, capsys):
+    import yaml
+
+    rec, flow = recording
+    out = tmp_path / "r.npz"
+    rc, err = _run(capsys, "segment", str(rec), "--flow", str(flow), "--out", str(out), "--config", "eed_like",
+                   "--set", "lambda_m=55", "--set", "max_nodes=12000")
+    assert rc == 0, err
+    seg = yaml.safe_load(load_result(out).config)["segmentation"]
+    assert seg["lambda_m"] == 55.0 and seg["max_nodes"] == 12000
+    assert seg["n_sampled_normal"] == 2  # the rest is the eed_like preset's
+    rc, err = _run(capsys, "segment", str(rec), "--flow", str(flow), "--out", str(out), "--set", "lambda_mm=5")
+    assert rc == 2 and err == ["evseg segment: error: --set: unknown segmentation parameter(s) ['lambda_mm']"], err

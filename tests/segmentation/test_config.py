@@ -49,8 +49,27 @@ def test_wrong_types_and_values(tmp_path):
     for field in ("occlusion_gap_px", "n_sampled_normal", "contrast_max_noise"):
         with pytest.raises(ConfigError, match=field):
             SegmentationConfig(**{field: -1})
-    with pytest.raises(ConfigError, match="unknown segmentation preset"):
+    with pytest.raises(ConfigError, match=r"nope: no such file, and no segmentation preset of that name; presets: "):
         load_segmentation_config("nope")
+
+
+def test_load_takes_what_the_pipeline_takes_and_files_without_an_extension(tmp_path, monkeypatch):
+    assert load_segmentation_config({"lambda_m": 40.0}).lambda_m == 40.0
+    assert load_segmentation_config(None) == SegmentationConfig()
+    cfg = SegmentationConfig(lambda_m=30.0)
+    assert load_segmentation_config(cfg) is cfg
+    (tmp_path / "myconf").write_text("lambda_m: 50.0\n")
+    assert load_segmentation_config(tmp_path / "myconf").lambda_m == 50.0
+    with pytest.raises(ConfigError, match=r": a folder, and no segmentation preset of that name"):
+        load_segmentation_config(tmp_path)
+    (tmp_path / "d.yaml").mkdir()
+    with pytest.raises(ConfigError, match=r"d.yaml: is a folder, not a segmentation config file"):
+        load_segmentation_config(tmp_path / "d.yaml")
+    from evseg.segmentation.config import _PRESET_DIR
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "eed_like").mkdir()  # a folder of that name does not hide the preset
+    assert load_segmentation_config("eed_like") == load_segmentation_config(_PRESET_DIR / "eed_like.yaml")
 
 
 def test_node_budget_values(tmp_path):
@@ -128,6 +147,11 @@ def test_numbers_must_be_finite(field, value):
     (dict(max_rounds=2.5), "SegmentationConfig.max_rounds must be an int, got 2.5"),
     (dict(static_camera="false"), "SegmentationConfig.static_camera must be a bool, got 'false'"),
     (dict(node_window_us=-5), "SegmentationConfig.node_window_us must be > 0 (us) or None"),
+    (dict(max_uncertainty=-1.0), "SegmentationConfig.max_uncertainty must be > 0 or None (keep every flow), got -1.0"),
+    (dict(max_object_parts=0), "SegmentationConfig.max_object_parts must be >= 1, got 0"),
+    (dict(n_sampled_with_prediction=-3), "SegmentationConfig.n_sampled_with_prediction must be >= 0, got -3"),
+    (dict(min_object_nodes=-1), "SegmentationConfig.min_object_nodes must be >= 0, got -1"),
+    (dict(prediction_margin_px=-50.0), "SegmentationConfig.prediction_margin_px must be >= 0, got -50.0"),
     (dict(origin_px=(1, 2, 3)), "SegmentationConfig.origin_px must be [column, row] in px"),
 ])
 def test_values_of_the_wrong_type_are_refused_when_made(kwargs, message):
@@ -148,3 +172,25 @@ def test_numpy_numbers_are_numbers():
     assert config_from_dict({"lambda_m": np.float32(40)}).lambda_m == 40.0
     with pytest.raises(ConfigError, match="must be a finite number"):
         SegmentationConfig(lambda_m=np.float32("nan"))
+
+
+def test_a_window_of_nodes_is_a_whole_number_and_survives_a_stored_config():
+    """node_window_us is a count of microseconds: it stays an int, so the config a result file
+    stores (yaml of the dataclass) loads again; it was kept as 8000.0, which the loader then
+    refused as 'must be int'."""
+    import dataclasses
+
+    import yaml
+
+    from evseg.segmentation.config import config_from_dict
+
+    cfg = SegmentationConfig(node_window_us=8000)
+    assert cfg.node_window_us == 8000 and type(cfg.node_window_us) is int
+    back = config_from_dict(yaml.safe_load(yaml.safe_dump(dataclasses.asdict(cfg))))
+    assert back == cfg
+    assert config_from_dict({"node_window_us": 8000.0}).node_window_us == 8000
+    with pytest.raises(ConfigError, match=r"SegmentationConfig.node_window_us must be an int, got 8000.5"):
+        SegmentationConfig(node_window_us=8000.5)
+    with pytest.raises(ConfigError, match=r"field 'lambda_m' must be float, got '1e2' \(YAML 1.1 reads a number like "
+                                          r"1e2 as text: write 1.0e2 or 100.0\)"):
+        config_from_dict({"lambda_m": "1e2"})

@@ -28,6 +28,19 @@ def test_nearest_node_labels_equals_brute_force(seed):
     np.testing.assert_array_equal(got, _brute_force(node_x, node_y, labels, x, y, limit))
 
 
+@pytest.mark.parametrize("limit", [np.inf, 1e300, 1e6])
+def test_an_unlimited_search_radius_labels_every_point(limit):
+    # max_propagation_px = inf is a valid setting (no limit); it used to size the search grid
+    # with inf and label every event -1.
+    rng = np.random.default_rng(3)
+    node_x, node_y = rng.uniform(0, 60, 50), rng.uniform(0, 40, 50)
+    labels = np.arange(50)
+    x, y = rng.uniform(-100, 160, 300), rng.uniform(-100, 140, 300)
+    got = nearest_node_labels(node_x, node_y, labels, x, y, limit)
+    np.testing.assert_array_equal(got, _brute_force(node_x, node_y, labels, x, y, np.inf))
+    assert (got >= 0).all()
+
+
 def test_nearest_node_labels_empty_inputs():
     assert nearest_node_labels(np.array([]), np.array([]), np.array([], dtype=int),
                                np.array([1.0]), np.array([1.0]), 5.0).tolist() == [-1]

@@ -647,3 +647,26 @@ def test_prepare_window_checks_its_arrays_and_takes_a_preset_name():
     with pytest.raises(ConfigError, match="must be a SegmentationConfig, a preset name or a mapping"):
         prepare_window(x, y, t, nx, ny, config=3)
     assert len(prepare_window(x, y, t, nx, ny, config="eed_like").graph) >= 0
+
+
+def test_user_input_far_off_the_sensor_or_of_the_wrong_kind_is_named():
+    """Far-off positions (a swapped sensor size, another frame) gave boxes clipped to the
+    border and lost objects; complex flow lost its imaginary part; a bad previous result or
+    tracked boxes failed deep in numpy."""
+    from evseg.errors import ConfigError, EventDataError
+    from evseg.segmentation import segment_normal_flow
+
+    s = synthetic_scene(n_flows=600, n_objects=1, seed=1)
+    w, h = s.sensor_size
+    assert s.x.max() > 1.25 * h  # the swapped size (height, width) leaves these columns far off
+    with pytest.raises(EventDataError, match=rf"'x' = .* at row \d+ lies far off the {h}x{w} sensor"):
+        segment_normal_flow(s.x, s.y, s.t, s.nx, s.ny, sensor_size=(h, w))
+    with pytest.raises(EventDataError, match=r"'nx' must hold real numbers, got dtype complex128"):
+        segment_normal_flow(s.x, s.y, s.t, s.nx.astype(complex), s.ny, sensor_size=s.sensor_size)
+    with pytest.raises(ConfigError, match=r"previous must be the previous window's SegmentationResult or None, got str"):
+        segment_normal_flow(s.x, s.y, s.t, s.nx, s.ny, sensor_size=s.sensor_size, previous="abc")
+    with pytest.raises(ConfigError, match=r"tracked_objects boxes must be \(K, 4\), got shape \(2, 3\)"):
+        segment_normal_flow(s.x, s.y, s.t, s.nx, s.ny, sensor_size=s.sensor_size,
+                            tracked_objects=(np.zeros((2, 3)), np.zeros((2, 4))))
+    # Undistorted positions a little beyond the edges are fine.
+    segment_normal_flow(s.x * 1.1 - 0.05 * w, s.y, s.t, s.nx, s.ny, sensor_size=s.sensor_size)

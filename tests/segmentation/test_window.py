@@ -36,6 +36,9 @@ def test_support_weights_are_relative_to_the_median_and_clipped():
     ((np.zeros(3), np.zeros(2)), "x has 3 values, y has 2"),
     ((np.array([0.0, np.nan]), np.zeros(2)), "NaN or infinite"),
     ((np.zeros(2), ["a", "b"]), "numeric"),
+    # events of another place or window: the support weights divided by a median of 0 (NaN costs)
+    ((np.zeros(10), np.zeros(10)), r"event_xy: \d+ of the \d+ node cells hold none of its 10 positions"),
+    ((np.zeros(0), np.zeros(0)), r"event_xy: \d+ of the \d+ node cells hold none of its 0 positions"),
 ])
 def test_bad_event_positions_are_a_clear_error(event_xy, match):
     s = synthetic_scene(n_flows=300, n_objects=1, seed=1)
