@@ -162,6 +162,19 @@ def load_flow_file(path: str | Path, n_events: int | None = None,
     return check_flow(data, n_events, source=str(path), error=FormatError)
 
 
+def flow_file_settings(path: str | Path) -> dict:
+    """The settings a flow file stores under ``config`` (what ``evseg flow`` ran: the
+    recording, its event count ``n_events``, the estimator...), or ``{}`` when it stores none
+    (files of other estimators need not)."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            text = str(z["config"]) if "config" in z.files else ""
+        settings = json.loads(text) if text else {}
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, TypeError):
+        return {}  # load_flow_file reports a broken file
+    return settings if isinstance(settings, dict) else {}
+
+
 def to_time_order(flow: dict[str, np.ndarray], input_order: np.ndarray | None,
                   source: str = "precomputed flow") -> dict[str, np.ndarray]:
     """A checked flow (:func:`check_flow`) whose ``index`` counts events in file order,

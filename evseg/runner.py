@@ -241,7 +241,7 @@ def run_segment_job(job: SegmentJob) -> str:
     from evseg.io import open_recording
     from evseg.io.recording import parse_sensor_size
     from evseg.overlay import VideoSink, label_overlay
-    from evseg.flow_file import to_time_order
+    from evseg.flow_file import flow_file_settings, to_time_order
     from evseg.pipeline import MotionSegmentationPipeline, load_flow_file
     from evseg.results import ResultWriter
 
@@ -287,6 +287,9 @@ def run_segment_job(job: SegmentJob) -> str:
             )
         flow = (load_flow_file(job.flow_file, sensor_size=rec.sensor_size)
                 if job.flow_file is not None else None)
+        # evseg flow records the event count of its recording; another recording of the same
+        # sensor and at least as many events would pass every check of the rows.
+        flow_n_events = flow_file_settings(job.flow_file).get("n_events") if job.flow_file is not None else None
         span = rec.time_span_us()
         if job.worker == "auto" and span is not None and span[1] - span[0] < AUTO_PROCESS_MIN_US:
             cfg = replace(cfg, worker="thread")  # too short to earn the process's start-up back
@@ -348,6 +351,10 @@ def run_segment_job(job: SegmentJob) -> str:
                 _advance(bar, res.t1_us if span is None else min(res.t1_us, span[1]), origin, n_windows)
             writer.add_unassigned(seen[0] - writer.n_written)  # events after the last window
     wall = time.perf_counter() - t_wall
+    mismatch = ""
+    if isinstance(flow_n_events, int) and flow_n_events != seen[0]:
+        mismatch = (f"; WARNING: {job.flow_file} was computed for a recording of {flow_n_events} events, this one has "
+                    f"{seen[0]} (flow of another recording?)")
     frames = ""
     if job.frames is not None:
         stale = (f", {plural(sink.stale_frames_removed, 'numbered frame')} of an earlier run removed"
@@ -367,7 +374,7 @@ def run_segment_job(job: SegmentJob) -> str:
     return (
         f"wrote {job.out}: {plural(writer.n_written, 'event')}, {plural(n_windows, 'window')}{speed}, "
         f"{plural(len(ids), 'distinct object')}, {n_objects / max(n_windows, 1):.2f} objects per window"
-        + live + (f"; video {job.video}" if job.video else "") + frames + inferred
+        + live + (f"; video {job.video}" if job.video else "") + frames + inferred + mismatch
     )
 
 

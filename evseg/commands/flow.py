@@ -218,7 +218,7 @@ def run(args: argparse.Namespace) -> int:
     index = flow.index if input_order is None else input_order[flow.index]  # file positions
     elapsed = time.perf_counter() - t_start
     info.update(
-        {"recording": str(args.recording), "window_us": window_us,
+        {"recording": str(args.recording), "n_events": n_events, "window_us": window_us,
          "context_us": context_us, "history_us": history_us, "targets": args.targets, "sorted": args.sort,
          "cell_px": args.cell_px if args.targets == "cell" else None,
          "calibration": str(args.calib) if args.calib else ("file" if calibration is not None else None)}

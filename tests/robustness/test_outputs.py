@@ -273,3 +273,26 @@ def test_set_overrides_a_preset_field_and_the_result_records_it(recording, tmp_p
     assert seg["n_sampled_normal"] == 2  # the rest is the eed_like preset's
     rc, err = _run(capsys, "segment", str(rec), "--flow", str(flow), "--out", str(out), "--set", "lambda_mm=5")
     assert rc == 2 and err == ["evseg segment: error: --set: unknown segmentation parameter(s) ['lambda_mm']"], err
+
+
+def test_a_flow_file_of_another_recording_is_flagged(recording, tmp_path, capsys):
+    """Same sensor, more events: every row's index is valid, so only the event count that
+    `evseg flow` records can tell; the summary says so."""
+    from evseg.events import EventStream
+    from evseg.io import read_events, write_npz
+
+    rec, _ = recording
+    flow = tmp_path / "f.npz"
+    rc, err = _run(capsys, "flow", str(rec), "--out", str(flow), "--baseline")
+    assert rc == 0, err
+    s = read_events(rec)
+    later = s.events.copy()
+    later["t"] += int(s.events["t"][-1]) + 1000
+    longer = write_npz(EventStream(np.concatenate([s.events, later]), s.sensor_size), tmp_path / "longer.npz")
+    capsys.readouterr()
+    assert main(["segment", str(longer), "--flow", str(flow), "--out", str(tmp_path / "r.npz"), "--no-progress"]) == 0
+    out = capsys.readouterr().out
+    assert (f"WARNING: {flow} was computed for a recording of {len(s.events)} events, this one has "
+            f"{2 * len(s.events)} (flow of another recording?)") in out
+    assert main(["segment", str(rec), "--flow", str(flow), "--out", str(tmp_path / "r2.npz"), "--no-progress"]) == 0
+    assert "WARNING" not in capsys.readouterr().out
