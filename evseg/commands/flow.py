@@ -42,13 +42,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--flow-method", choices=["learned", "planefit"], default=None,
                    help="the estimator, as evseg segment names it: planefit = --baseline (default: learned)")
     p.add_argument("--no-fast-edges", action="store_true",
-                   help="skip the time-stretched second look at fast flows (docs/normal_flow.md)")
+                   help="skip the time-stretched second look at fast flows (README, Normal flow)")
     p.add_argument("--no-slow-edges", action="store_true",
                    help="skip the time-compressed second look at slow flows over a longer slice "
-                        "(docs/normal_flow.md; up to 2.4x less time on slow scenes)")
+                        "(README, Normal flow; up to 2.4x less time on slow scenes)")
     p.add_argument("--mirrors", type=int, choices=[1, 2, 4, 8], default=1,
                    help="average the model's flow over this many mirror images of each slice "
-                        "(docs/normal_flow.md; 8: 9.9 instead of 11.5 deg median angular error "
+                        "(README, Normal flow; 8: 9.9 instead of 11.5 deg median angular error "
                         "on held-out scenes, at ~5x the time)")
     p.add_argument("--calib", type=Path, default=None,
                    help="calibration YAML: ROS camera_info / EMSGC, or a Kalibr camchain (default: the file's own, if any)")

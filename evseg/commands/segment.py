@@ -63,21 +63,21 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "(2: fewer false objects, each object reported one window later)")
     p.add_argument("--no-fast-edges", action="store_true",
                    help="learned flow: skip the time-stretched second look at fast flows "
-                        "(faster, but fast small objects come out too slow; docs/normal_flow.md)")
+                        "(faster, but fast small objects come out too slow; README, Normal flow)")
     p.add_argument("--slow-edges", action="store_true",
                    help="learned flow: add the time-compressed second look at slow flows over twice "
                         "the time (a better direction for slow edges, 1.5-2.4x the flow's time on slow "
                         "scenes; off by default: more false objects on real one-motion recordings; "
-                        "docs/normal_flow.md)")
+                        "README, Normal flow)")
     p.add_argument("--mirrors", type=int, choices=[1, 2, 4, 8], default=1,
                    help="learned flow: average it over this many mirror images of each window (fewer "
                         "false objects, at this many times the flow's time: for offline runs; "
-                        "docs/normal_flow.md)")
+                        "README, Normal flow)")
     p.add_argument("--tracked-mirrors", type=int, choices=[1, 2, 4, 8], default=1,
                    help="learned flow: this many mirror looks only where the object tracks expect an object "
                         "(inside their predicted boxes): more objects found and fewer false ones, at a "
                         "fraction of --mirrors 8's time when the objects are small; on real recordings "
-                        "without objects about as many false ones; docs/normal_flow.md")
+                        "without objects about as many false ones; README, Normal flow")
     p.add_argument("--tracked-max-targets", type=int, default=None, metavar="N",
                    help="with --tracked-mirrors: at most N targets per window get the extra looks (the "
                         "smallest boxes first), which bounds its time; default: all in the boxes")
