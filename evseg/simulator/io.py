@@ -57,6 +57,9 @@ def load_recording(path: str | Path) -> SimulatedRecording:
     except FileNotFoundError:
         raise FormatError(f"{path}: no such file") from None
     except (OSError, ValueError, zipfile.BadZipFile) as exc:
+        if "pickled" in str(exc):  # numpy's word for any file that is not .npy/.npz: no unpickling advice
+            raise FormatError(f"{path}: not an .npz archive (a simulated recording is the .npz evseg simulate "
+                              "--out writes)") from None
         raise FormatError(f"{path}: not a readable .npz file ({exc})") from None
     with data:
         if not isinstance(data, np.lib.npyio.NpzFile):

@@ -303,7 +303,14 @@ def _convert(tp: Any, value: Any, where: str, source: str) -> Any:
         return value
     if tp is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(f"{source}: '{where}' must be a number, got {value!r}")
+            hint = ""
+            if isinstance(value, str):
+                try:
+                    float(value)
+                    hint = " (YAML 1.1 reads a number like 1e9 as text: write 1.0e+9)"
+                except ValueError:
+                    pass
+            raise ConfigError(f"{source}: '{where}' must be a number, got {value!r}{hint}")
         return float(value)
     if tp is str:
         if not isinstance(value, str):
@@ -369,6 +376,17 @@ def _problem(obj: Any) -> tuple[str, str] | None:
             return bad(f.name, f"must be finite, got {value!r}")  # NaN passes every range check below
 
     if isinstance(obj, TextureConfig):
+        for key in ("scale_px", "thickness_px"):
+            if not getattr(obj, key)[0] > 0:
+                return bad(key, f"must be positive (px), got {list(getattr(obj, key))}")
+        for key in ("contrast", "mean"):
+            lo, hi = getattr(obj, key)
+            if not (0 <= lo and hi <= 1):
+                return bad(key, f"must lie in [0, 1] (a share of full brightness), got {[lo, hi]}")
+        if not obj.density > 0:
+            return bad("density", f"must be positive, got {obj.density}")
+        if not obj.blur_px >= 0:
+            return bad("blur_px", f"must be >= 0 px, got {obj.blur_px}")
         for fam in obj.family:
             if fam not in TEXTURE_FAMILIES:
                 return bad("family", f"has unknown texture family '{fam}' (known: {', '.join(TEXTURE_FAMILIES)})")
@@ -386,6 +404,20 @@ def _problem(obj: Any) -> tuple[str, str] | None:
             return bad("aspect", f"must lie in (0, 1] (short / long extent), got {list(obj.aspect)}")
         if not 0 <= obj.in_view <= 1:
             return bad("in_view", f"must be in [0, 1], got {obj.in_view}")
+        if not obj.min_log_contrast >= 0:
+            return bad("min_log_contrast", f"must be >= 0, got {obj.min_log_contrast}")
+    if isinstance(obj, ForegroundConfig):
+        if not 0 <= obj.probability <= 1:
+            return bad("probability", f"must be in [0, 1], got {obj.probability}")
+        if not obj.parallax[0] > 0:
+            return bad("parallax", f"must be positive (a factor of the background's motion), got {list(obj.parallax)}")
+    if isinstance(obj, LightingConfig):
+        if not obj.gain[0] > 0:
+            return bad("gain", f"must be positive (intensity must stay > 0 for its log), got {list(obj.gain)}")
+        if not 0 <= obj.flicker_amplitude < 1:
+            return bad("flicker_amplitude", f"must be in [0, 1) (the intensity must stay > 0), got {obj.flicker_amplitude}")
+        if not obj.flicker_hz >= 0:
+            return bad("flicker_hz", f"must be >= 0, got {obj.flicker_hz}")
     if isinstance(obj, MotionConfig):
         for key in ("speed_px_s", "wobble", "wobble_hz", "rotation_deg_s"):
             if not getattr(obj, key)[0] >= 0:
@@ -405,8 +437,13 @@ def _problem(obj: Any) -> tuple[str, str] | None:
     if isinstance(obj, SceneConfig):
         if not 0 < obj.max_step_px <= 2:
             return bad("max_step_px", f"must be in (0, 2] px, got {obj.max_step_px}")
-        if not obj.max_step_us > 0:
-            return bad("max_step_us", f"must be positive, got {obj.max_step_us}")
+        if not obj.max_step_us >= 1:
+            return bad("max_step_us", f"must be >= 1 us (timestamps are whole microseconds), got {obj.max_step_us}")
+        if not obj.gradient_sigma_px >= 0:
+            return bad("gradient_sigma_px", f"must be >= 0 px, got {obj.gradient_sigma_px}")
+        for key in ("label_coverage", "mask_coverage"):
+            if not 0 < getattr(obj, key) <= 1:
+                return bad(key, f"must be in (0, 1] (a share of the pixel), got {getattr(obj, key)}")
     for f in dataclasses.fields(obj):
         if _type_hints(type(obj))[f.name] == Range:
             lo, hi = getattr(obj, f.name)

@@ -54,6 +54,19 @@ def test_unknown_key_names_key_and_file(tmp_path):
     ("objects: [{count: [3, 1]}]", "'objects[0].count'"),
     ("- just\n- a list", "must be a mapping"),
     ("sensor: {c_pos: 0}", "thresholds"),
+    # these ran: a numpy broadcast error, a run that never ends, log of negative light, and
+    # silently empty or mislabelled recordings
+    ("gradient_sigma_px: -1", "'gradient_sigma_px' must be >= 0 px"),
+    ("max_step_us: 0.001", "'max_step_us' must be >= 1 us"),
+    ("lighting: {gain: -0.5}", "'lighting.gain' must be positive"),
+    ("lighting: {flicker_amplitude: 2}", "'lighting.flicker_amplitude' must be in [0, 1)"),
+    ("label_coverage: 0", "'label_coverage' must be in (0, 1]"),
+    ("mask_coverage: 5", "'mask_coverage' must be in (0, 1]"),
+    ("background: {texture: {scale_px: 0}}", "'background.texture.scale_px' must be positive"),
+    ("background: {texture: {mean: [-1, 0.5]}}", "'background.texture.mean' must lie in [0, 1]"),
+    ("foreground: [{probability: 2}]", "'foreground[0].probability' must be in [0, 1]"),
+    ("objects: [{min_log_contrast: -1}]", "'objects[0].min_log_contrast' must be >= 0"),
+    ("sensor: {c_pos: 1e9}", "must be a number, got '1e9' (YAML 1.1 reads a number like 1e9 as text"),
 ])
 def test_bad_values_raise_config_error(tmp_path, text, fragment):
     path = tmp_path / "bad.yaml"
