@@ -51,6 +51,8 @@ def run(args: argparse.Namespace) -> int:
         return 0
     if not (math.isfinite(args.duration) and args.duration > 0):
         raise ConfigError(f"--duration must be positive seconds, got {args.duration}")
+    if round(args.duration * 1e6) < 1:
+        raise ConfigError(f"--duration must be at least 1 us (1e-6 s), got {args.duration:g} s")
     from evseg.io.output_paths import check_output_path
 
     check_output_path(args.out, "--out", (".npz",), [("the scene config (--config)", args.config)])
@@ -96,5 +98,5 @@ def run(args: argparse.Namespace) -> int:
         if args.preview is not None:
             print(f"{args.preview}: preview (events | GT labels | GT normal flow | GT optical flow)")
         if args.config:
-            print("effective config: " + json.dumps(scene_to_dict(cfg))[:2000])
+            print("effective config: " + json.dumps(scene_to_dict(cfg)))  # whole: a cut JSON cannot be reused
     return 0

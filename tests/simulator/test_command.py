@@ -34,6 +34,7 @@ def test_simulate_from_a_config_file(tmp_path):
     (["--preset", "nope"], "unknown scene preset 'nope'"),
     (["--sensor", "12by3"], "--sensor must be WIDTHxHEIGHT"),
     (["--duration", "0"], "--duration must be positive"),
+    (["--duration", "1e-7"], "--duration must be at least 1 us (1e-6 s), got 1e-07 s"),  # was reported as "0 us"
 ])
 def test_user_errors_exit_2_with_one_line(tmp_path, capsys, args, message):
     rc = main(["simulate", *args, "--out", str(tmp_path / "x.npz")])
