@@ -18,6 +18,8 @@ Dense mask, ``method``:
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from evseg.segmentation._kernels import same_label_components
@@ -341,11 +343,12 @@ def nearest_node_index(
         return np.full(len(x), -1, dtype=np.int64)
     node_x = np.ascontiguousarray(node_x, dtype=np.float64)
     node_y = np.ascontiguousarray(node_y, dtype=np.float64)
-    # No two positions lie farther apart than the diagonal of their joint extent: a larger
-    # radius (inf: no limit) searches the same, and an infinite one would size no grid.
-    span = np.hypot(max(x.max(), node_x.max()) - min(x.min(), node_x.min()),
-                    max(y.max(), node_y.max()) - min(y.min(), node_y.min()))
-    reach = min(float(max_distance_px), float(span) + 1.0)
+    reach = float(max_distance_px)
+    if not math.isfinite(reach):
+        # No limit: no two positions lie farther apart than the diagonal of their joint extent
+        # (an infinite radius would size no search grid).
+        reach = float(np.hypot(max(x.max(), node_x.max()) - min(x.min(), node_x.min()),
+                               max(y.max(), node_y.max()) - min(y.min(), node_y.min()))) + 1.0
     # Buckets of a third of the search radius: a query scans at most 5 rings of cells.
     bucket = max(reach / 3.0, 1.0)
     return np.asarray(grid_nearest(node_x, node_y, x, y, reach, bucket), dtype=np.int64)

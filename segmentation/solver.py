@@ -181,8 +181,9 @@ def segment_normal_flow(
 
     Raises:
         EventDataError: arrays of different lengths or not 1-D, a position that is NaN or
-            infinite or far off the sensor (more than a quarter of its size), a time that is not whole microseconds (seconds would all fall into one
-            microsecond), a negative uncertainty; the message names the argument and the row.
+            infinite or far off the sensor (more than a quarter of its size), a time that is
+            not whole microseconds (seconds would all fall into one microsecond), a negative
+            uncertainty; the message names the argument and the row.
     """
     _check_on_sensor(x, y, sensor_size)
     prepared = prepare_window(x, y, t, nx, ny, uncertainty, config, sensor_size, event_xy)

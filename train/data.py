@@ -437,8 +437,9 @@ def _integer_microseconds(t: np.ndarray, path: Path, key: str) -> np.ndarray:
         # evseg's readers take float time as seconds, but this layout's time is microseconds: say so.
         raise FormatError(f"{path}: field '{key}' must be integer microseconds, got dtype {t.dtype} "
                           f"(time in seconds: store np.round({key} * 1e6).astype(np.int64))")
-    if len(t) and np.abs(t.astype(np.float64)).max() > LATEST_PLAUSIBLE_US:
-        i = int(np.argmax(np.abs(t.astype(np.float64)) > LATEST_PLAUSIBLE_US))
+    beyond = np.abs(t.astype(np.float64)) > LATEST_PLAUSIBLE_US
+    if beyond.any():
+        i = int(np.argmax(beyond))
         raise FormatError(f"{path}: field '{key}' = {t[i]} at {i} is after the year 2100 as microseconds: "
                           f"nanoseconds? store ({key} + 500) // 1000")
     return t.astype(np.int64)

@@ -324,11 +324,11 @@ def recording_slices(events: np.ndarray, slice_us: int, max_slices: int) -> list
 
 
 def sharpness_of_window(
-    events: np.ndarray, first: int, t0_us: int, sensor_size, learned: Estimator, baseline: Estimator,
+    events: np.ndarray, t0_us: int, sensor_size, learned: Estimator, baseline: Estimator,
     slice_us: int = 10_000, n_slices: int = 3, context_us: int = FlowEvalConfig.context_us,
 ) -> tuple[float, float, int]:
     """Warp sharpness of learned and baseline flow over ``n_slices`` back-to-back slices of
-    ``slice_us`` from ``t0_us`` (``events[first]`` its first event), and the number of events
+    ``slice_us`` from ``t0_us`` (us), and the number of events
     both estimate. Each slice's events all get a flow, with ``context_us`` of events before
     the slice as neighbours (and the history the learned flow's slow-edge look needs), as in
     the pipeline; the window's events are then warped to its middle."""
@@ -345,11 +345,11 @@ def sharpness_of_window(
         history = _history_before(learned, events, s0, slice_us, context_us)
         learned_parts.append(_flows(learned, e, sensor_size, targets, context, history)[0])
         baseline_parts.append(_flows(baseline, e, sensor_size, targets, context)[0])
-    stop = int(np.searchsorted(t, t0_us + n_slices * slice_us))
     if not learned_parts:
         return float("nan"), float("nan"), 0
     p, b = np.concatenate(learned_parts), np.concatenate(baseline_parts)
-    e = events[first:stop]
+    first, stop = (int(v) for v in np.searchsorted(t, [t0_us, t0_us + n_slices * slice_us]))
+    e = events[first:stop]  # the slices' events, back to back
     ok = np.all(np.isfinite(p), axis=1) & np.all(np.isfinite(b), axis=1)
     x, y, te = e["x"][ok], e["y"][ok], e["t"][ok]
     shape = (sensor_size[1], sensor_size[0])
@@ -376,7 +376,7 @@ def evaluate_estimators_real(
         ls, bs, n = [], [], 0
         for a, _ in recording_slices(stream.events, n_slices * slice_us, max_windows):
             t0 = int(stream.events["t"][a])
-            sl, sb, k = sharpness_of_window(stream.events, a, t0, stream.sensor_size, learned, baseline,
+            sl, sb, k = sharpness_of_window(stream.events, t0, stream.sensor_size, learned, baseline,
                                             slice_us, n_slices, context_us)
             if np.isfinite(sl) and np.isfinite(sb):
                 ls.append(sl)

@@ -14,6 +14,11 @@ from pathlib import Path
 
 from evseg.commands.bench import check_table_out, emit_table, model_options, resolve_target
 from evseg.errors import EvsegError
+# The evaluations' seed ranges: seeds below FIRST_VALIDATION_SEED are where training configs
+# draw their scenes (the shipped model: 0-47), so --seeds refuses them for the targets that run a
+# trained model; from FIRST_HELD_OUT_SEED on they are the published tables' (the default).
+from evseg.train.evaluate import HELD_OUT_SEED_START as FIRST_HELD_OUT_SEED
+from evseg.train.evaluate import VALIDATION_SEED_START as FIRST_VALIDATION_SEED
 
 HELP = "evaluate accuracy on held-out simulated scenes and write a markdown table"
 
@@ -63,14 +68,6 @@ OVERRIDES_TARGETS = ("seg", "pipeline", "flow-errors", "static", "pipeline-real"
 # Targets that run the shipped normal-flow model on simulated scenes: seeds below the
 # validation range were its training scenes.
 LEARNED_FLOW_SEED_TARGETS = ("pipeline", "flow-errors", "static", "flow")
-
-FIRST_VALIDATION_SEED = 900
-"""The shipped normal-flow model trained on scene seeds 0-47 (``configs/train/default.yaml``):
-``evseg eval pipeline --seeds`` refuses seeds below this, whose figures would flatter it."""
-
-FIRST_HELD_OUT_SEED = 1000
-"""Seeds from here on are the held-out scenes of the published tables (the default without
-``--seeds``); validation seeds 900-999 are for comparing settings and models."""
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

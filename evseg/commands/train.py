@@ -45,8 +45,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     if not args.config:
         raise ConfigError("--config needs a YAML file")
-    config, rest = resolve_training_config(args.config[0]), _resolve_more_configs(args.config[1:])
-    for path in [config, *_more_configs(rest)]:
+    config = resolve_training_config(args.config[0])
+    rest, more = _resolve_more_configs(args.config[1:])
+    for path in [config, *more]:
         check_training_config(path)
     from lightning.fabric.utilities.exceptions import MisconfigurationException
 
@@ -65,18 +66,6 @@ def run(args: argparse.Namespace) -> int:
         # accelerator it does not have): the user's to change, not a bug in evseg.
         raise ConfigError(lightning_setting_problem(str(exc))) from None
     return 0
-
-
-def _more_configs(rest: list[str]) -> list[str]:
-    """The files of further ``--config FILE`` / ``--config=FILE`` / ``-c FILE`` options among the
-    options handed to LightningCLI."""
-    out = []
-    for i, arg in enumerate(rest):
-        if arg in ("--config", "-c") and i + 1 < len(rest):
-            out.append(rest[i + 1])
-        elif arg.startswith("--config="):
-            out.append(arg.split("=", 1)[1])
-    return out
 
 
 def shipped_training_configs() -> dict[str, Path]:
@@ -107,15 +96,18 @@ def resolve_training_config(value: str) -> str:
     return value
 
 
-def _resolve_more_configs(rest: list[str]) -> list[str]:
-    """``rest`` with the files of further ``--config`` options resolved as the first one."""
-    out = list(rest)
+def _resolve_more_configs(rest: list[str]) -> tuple[list[str], list[str]]:
+    """``rest`` (the options handed to LightningCLI) with the files of further ``--config FILE``
+    / ``--config=FILE`` / ``-c FILE`` options resolved as the first one, and those files."""
+    out, files = list(rest), []
     for i, arg in enumerate(out):
         if arg in ("--config", "-c") and i + 1 < len(out):
             out[i + 1] = resolve_training_config(out[i + 1])
+            files.append(out[i + 1])
         elif arg.startswith("--config="):
-            out[i] = "--config=" + resolve_training_config(arg.split("=", 1)[1])
-    return out
+            files.append(resolve_training_config(arg.split("=", 1)[1]))
+            out[i] = "--config=" + files[-1]
+    return out, files
 
 
 def check_training_config(path: str) -> None:

@@ -27,7 +27,7 @@ import shutil
 import tempfile
 import zipfile
 from pathlib import Path
-from typing import Iterable, Iterator
+from typing import Callable, Iterable, Iterator
 
 import numpy as np
 
@@ -79,7 +79,8 @@ is in another unit than the one assumed: epoch nanoseconds read as microseconds,
 milliseconds read as seconds."""
 
 
-def implausible_time_problem(t_us: np.ndarray, t: np.ndarray, unit: str, where: str, first: str) -> str | None:
+def implausible_time_problem(t_us: np.ndarray, t: np.ndarray, unit: str, where: str,
+                             first: Callable[[int], str]) -> str | None:
     """The message for the first time of ``t_us`` (us, converted from ``t`` read as ``unit``)
     beyond :data:`LATEST_PLAUSIBLE_US`, or None. ``first`` names its position (``event 12``)."""
     if not len(t_us):

@@ -51,15 +51,16 @@ def save_recording(rec: SimulatedRecording, path: str | Path) -> Path:
 def load_recording(path: str | Path) -> SimulatedRecording:
     """Read a file written by :func:`save_recording`; FormatError naming the file and the
     missing or malformed entry otherwise."""
+    from evseg.io.numpy_files import require_npz
+
     path = Path(path)
+    if not path.exists():
+        raise FormatError(f"{path}: no such file")
+    # Not numpy's "pickled data" advice for a file that is no .npz at all.
+    require_npz(path, "simulated recording", ", as evseg simulate --out writes")
     try:
         data = np.load(path, allow_pickle=False)
-    except FileNotFoundError:
-        raise FormatError(f"{path}: no such file") from None
     except (OSError, ValueError, zipfile.BadZipFile) as exc:
-        if "pickled" in str(exc):  # numpy's word for any file that is not .npy/.npz: no unpickling advice
-            raise FormatError(f"{path}: not an .npz archive (a simulated recording is the .npz evseg simulate "
-                              "--out writes)") from None
         raise FormatError(f"{path}: not a readable .npz file ({exc})") from None
     with data:
         if not isinstance(data, np.lib.npyio.NpzFile):
