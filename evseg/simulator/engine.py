@@ -13,8 +13,7 @@ from evseg.events import EVENT_DTYPE, EventStream
 from evseg.simulator.camera import PixelArray, noise_events
 from evseg.simulator.ground_truth import layer_flow, log_gradient_at, project_on_gradient
 from evseg.simulator.recording import SimulatedRecording
-from evseg.simulator.render import Frame, SceneInstance, child_rng, render_frame, sample_scene
-from evseg.simulator.scene import SceneConfig
+from evseg.simulator.render import Frame, SceneInstance, child_rng, event_layers, render_frame, sample_scene
 from evseg.simulator.scene import SceneConfig
 
 
@@ -91,8 +90,8 @@ def simulate(
         if len(cr.pixel):
             x = cr.pixel % width
             y = cr.pixel // width
-            # Frontmost layer covering the pixel at either end of the step (depth order = index).
-            layer = np.maximum(prev.layer_map[y + margin, x + margin], cur.layer_map[y + margin, x + margin])
+            # The layer whose motion changed the pixel most during the step (depth order = index).
+            layer = event_layers(prev, cur, x + margin, y + margin)
             flow = layer_flow(scene, layer, x, y, cr.t_us * 1e-6)
             grad = log_gradient_at(prev_smooth, x + margin, y + margin) + log_gradient_at(cur_smooth, x + margin, y + margin)
             nflow = project_on_gradient(flow, grad)

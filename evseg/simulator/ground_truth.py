@@ -3,11 +3,16 @@
 Conventions (the same everywhere in evseg): x = column, y = row (row 0 = top, y grows down),
 flow in px/s with component 0 along x and 1 along y.
 
-* **Label** of an event: the label of the frontmost layer that covers at least
-  ``label_coverage`` (default 1/4) of the event's pixel at the start or the end of the
-  rendering sub-step in which the event fired. Both ends count so that the trailing edge of an
-  object (the pixel it just left) is attributed to the object whose motion caused the change;
-  0 for background and foreground occluders, k >= 1 for object k, -1 for noise and hot pixels.
+* **Label** of an event: the label of the layer whose own motion changed the event pixel's
+  intensity most during the rendering sub-step in which the event fired
+  (:func:`~evseg.simulator.render.event_layers`: for layer k, the change of its
+  ``alpha T`` minus its coverage change times what is behind it, seen through the layers in
+  front). An object's anti-aliased rim and trailing edge are the object's (a sliver of it
+  changes the pixel by the sliver's contrast), a still background causes no event, and an
+  occluder in front takes the pixels where its own motion dominates. Where no layer moved
+  (the lighting changed), the frontmost layer covering at least ``label_coverage`` (default
+  1/4) at either end of the sub-step. 0 for background and foreground occluders, k >= 1 for
+  object k, -1 for noise and hot pixels.
 * **Optical flow**: the analytic image velocity of that layer at the event's pixel centre and
   timestamp (:meth:`~evseg.simulator.motion.AffineTrajectory.flow`).
 * **Normal flow**: the optical flow projected on the direction of the spatial gradient of log

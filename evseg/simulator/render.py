@@ -7,9 +7,10 @@ trajectories, all derived from the seed only (so a saved recording can re-render
 Layers are kept in **depth order, back to front**: index 0 is the background, indices 1..K the
 independently moving objects (object id = layer index, so a larger id is nearer the camera), then
 the foreground occluders. :func:`render_frame` composites them ("over" operator on linear
-intensity) with bilinear warping (OpenCV; sub-pixel positions are resolved to 1/32 px) and also
-returns, per pixel, the frontmost layer that covers at least ``label_coverage`` of the pixel,
-which is what ground-truth labels and flow are read from.
+intensity) with bilinear warping (OpenCV; sub-pixel positions are resolved to 1/32 px) and keeps
+each layer's share of the composite, from which :func:`event_layers` tells which layer's motion
+caused an event (what ground-truth labels and flow are read from); it also returns, per pixel,
+the frontmost layer that covers at least ``label_coverage`` of it (the label where no layer moved).
 """
 
 from __future__ import annotations
@@ -244,6 +245,28 @@ def _warp_layer(ly: Layer, t_s: float, width: int, height: int, margin: int = 0)
 
 
 @dataclass(frozen=True)
+class LayerSample:
+    """One layer's share of a rendered frame, over its region of interest (frame pixels
+    ``[y0 : y0 + h, x0 : x0 + w]``), float32 (h, w) each.
+
+    Attributes:
+        x0, y0: corner of the region in frame pixels.
+        texture: the layer's warped linear intensity.
+        alpha: its coverage; None for the opaque background (1 everywhere).
+        behind: the composite of the layers behind it (what shows through where alpha < 1);
+            None for the background (nothing is behind it).
+        front: transmittance of the layers in front of it (how much of it reaches the sensor).
+    """
+
+    x0: int
+    y0: int
+    texture: np.ndarray = field(repr=False)
+    alpha: np.ndarray | None = field(repr=False)
+    behind: np.ndarray | None = field(repr=False)
+    front: np.ndarray = field(repr=False)
+
+
+@dataclass(frozen=True)
 class Frame:
     """A rendered instant.
 
@@ -255,12 +278,17 @@ class Frame:
             ``label_coverage`` of each pixel (0 = background).
         margin: px rendered beyond each side of the sensor (so that image gradients at the
             sensor's border see the scene, not a padding rule).
+        samples: per layer (depth order) its :class:`LayerSample`, None where the layer is out
+            of the frame; what :func:`motion_causes` needs.
+        gain: the global gain at ``t_s`` (``intensity`` includes it, the samples do not).
     """
 
     t_s: float
     intensity: np.ndarray
     layer_map: np.ndarray
     margin: int = 0
+    samples: tuple = field(default=(), repr=False)
+    gain: float = 1.0
 
     @property
     def sensor_intensity(self) -> np.ndarray:
@@ -280,30 +308,96 @@ def render_frame(scene: SceneInstance, t_s: float, margin: int = 0) -> Frame:
     w, h = scene.width + 2 * margin, scene.height + 2 * margin
     warped = [_warp_layer(ly, t_s, w, h, margin) for ly in scene.layers]
     img = warped[0][2].copy()
-    for wl in warped[1:]:
+    behind: list[np.ndarray | None] = [None] * len(warped)
+    for idx in range(1, len(warped)):
+        wl = warped[idx]
         if wl is None:
             continue
         x0, y0, tex, alpha = wl
         roi = img[y0 : y0 + tex.shape[0], x0 : x0 + tex.shape[1]]
+        behind[idx] = roi.copy()
         roi += alpha * (tex - roi)  # "over": roi (1 - a) + tex a
     layer_map = np.zeros((h, w), np.int16)
-    if len(scene.layers) > 1:
-        # Visible weight of a layer = its alpha times the transmittance of all layers in front;
-        # walk front to back so the first layer to pass the threshold is the frontmost one.
-        trans = np.ones((h, w), np.float32)
-        assigned = np.zeros((h, w), bool)
-        for idx in range(len(scene.layers) - 1, 0, -1):
-            wl = warped[idx]
-            if wl is None:
-                continue
-            x0, y0, _, alpha = wl
-            sl = (slice(y0, y0 + alpha.shape[0]), slice(x0, x0 + alpha.shape[1]))
-            vis = alpha * trans[sl]
-            hit = (vis >= scene.label_coverage) & ~assigned[sl]
-            layer_map[sl][hit] = idx
-            assigned[sl] |= hit
-            trans[sl] *= 1.0 - alpha
-    return Frame(t_s, img * np.float32(scene.gain_at(t_s)), layer_map, margin)
+    front: list[np.ndarray | None] = [None] * len(warped)
+    # Visible weight of a layer = its alpha times the transmittance of all layers in front;
+    # walk front to back so the first layer to pass the threshold is the frontmost one.
+    trans = np.ones((h, w), np.float32)
+    assigned = np.zeros((h, w), bool)
+    for idx in range(len(scene.layers) - 1, 0, -1):
+        wl = warped[idx]
+        if wl is None:
+            continue
+        x0, y0, _, alpha = wl
+        sl = (slice(y0, y0 + alpha.shape[0]), slice(x0, x0 + alpha.shape[1]))
+        front[idx] = trans[sl].copy()
+        vis = alpha * trans[sl]
+        hit = (vis >= scene.label_coverage) & ~assigned[sl]
+        layer_map[sl][hit] = idx
+        assigned[sl] |= hit
+        trans[sl] *= 1.0 - alpha
+    front[0] = trans
+    samples = tuple(
+        None if wl is None else LayerSample(wl[0], wl[1], wl[2], wl[3], behind[i], front[i])
+        for i, wl in enumerate(warped)
+    )
+    gain = float(scene.gain_at(t_s))
+    return Frame(t_s, img * np.float32(gain), layer_map, margin, samples, gain)
+
+
+def _sample_at(sample: LayerSample | None, px: np.ndarray, py: np.ndarray):
+    """(texture, alpha, behind, front) of a layer at frame pixels ``(px, py)``, float64 (N,)
+    each; a pixel outside the layer's region has alpha 0 (the layer is not there)."""
+    n = len(px)
+    if sample is None:
+        z = np.zeros(n)
+        return z, z, z, z
+    hh, ww = sample.texture.shape
+    cx, cy = px - sample.x0, py - sample.y0
+    inside = (cx >= 0) & (cx < ww) & (cy >= 0) & (cy < hh)
+    cx, cy = np.where(inside, cx, 0), np.where(inside, cy, 0)
+
+    def at(a, fill=0.0):
+        return np.where(inside, a[cy, cx].astype(np.float64) if a is not None else fill, 0.0)
+
+    return at(sample.texture), at(sample.alpha, 1.0), at(sample.behind), at(sample.front)
+
+
+def motion_causes(prev: Frame, cur: Frame, px: np.ndarray, py: np.ndarray) -> np.ndarray:
+    """How much each layer's own motion changed the (gain-free) linear intensity of frame
+    pixels ``(px, py)`` between two rendered instants: float64 (N, L), depth order.
+
+    Layer k shows ``F (alpha T + (1 - alpha) B)`` (F: transmittance of the layers in front, B:
+    the composite behind it). Moving only layer k changes its texture T and coverage alpha;
+    to first order, with the other terms at their mean over the two instants, that changes
+    the pixel by ``F (delta(alpha T) - delta(alpha) B)``. A layer that does not move
+    (a still camera's background) causes nothing, whatever flicker or other layers do; an
+    object whose rim sweeps a pixel causes the rim's contrast against what is behind it.
+    """
+    out = np.zeros((len(px), len(cur.samples)))
+    for k, (a, b) in enumerate(zip(prev.samples, cur.samples)):
+        if a is None and b is None:
+            continue
+        t0, a0, b0, f0 = _sample_at(a, px, py)
+        t1, a1, b1, f1 = _sample_at(b, px, py)
+        # A layer out of the frame at one instant contributes nothing there: its coverage is 0
+        # and its other terms are those of the instant where it is in.
+        b_mean = np.where((a0 > 0) & (a1 > 0), 0.5 * (b0 + b1), np.where(a1 > 0, b1, b0))
+        f_mean = np.where((a0 > 0) & (a1 > 0), 0.5 * (f0 + f1), np.where(a1 > 0, f1, f0))
+        out[:, k] = f_mean * ((a1 * t1 - a0 * t0) - (a1 - a0) * b_mean)
+    return out
+
+
+def event_layers(prev: Frame, cur: Frame, px: np.ndarray, py: np.ndarray, min_cause: float = 1e-4) -> np.ndarray:
+    """Layer (depth index, int64 (N,)) whose motion caused the events at frame pixels
+    ``(px, py)`` between two rendered instants: the layer of largest :func:`motion_causes`.
+    Where no layer's motion changed the pixel by ``min_cause`` of its intensity (the change was
+    the lighting's), the frontmost layer covering ``label_coverage`` at either instant."""
+    causes = np.abs(motion_causes(prev, cur, px, py))
+    best = np.argmax(causes, axis=1)
+    level = 0.5 * (prev.intensity[py, px] / max(prev.gain, 1e-12) + cur.intensity[py, px] / max(cur.gain, 1e-12))
+    covering = np.maximum(prev.layer_map[py, px], cur.layer_map[py, px]).astype(np.int64)
+    moved = causes[np.arange(len(best)), best] > min_cause * np.maximum(level, 1e-6)
+    return np.where(moved, best, covering)
 
 
 def object_coverage(scene: SceneInstance, t_s: float) -> np.ndarray:

@@ -242,8 +242,9 @@ class SceneConfig:
         max_step_us: upper bound of the sub-step in time, whatever the speed.
         gradient_sigma_px: smoothing of the log image before taking the spatial gradient that
             defines the normal-flow direction.
-        label_coverage: an event is attributed to the frontmost layer that covers at least
-            this share of its pixel at the start or the end of the sub-step.
+        label_coverage: an event is attributed to the layer whose motion changed its pixel
+            most; where none moved (a lighting change), to the frontmost layer that covers at
+            least this share of its pixel at the start or the end of the sub-step.
         mask_coverage: a pixel belongs to an object's ground-truth mask when the object
             covers at least this share of it (after occlusion by objects in front).
     """
