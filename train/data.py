@@ -687,9 +687,18 @@ class NormalFlowDataModule(_lightning_datamodule_base()):
         self.train_set: FlowTargetDataset | None = None
         self.val_set: FlowTargetDataset | None = None
 
+    def _scene_key(self) -> dict:
+        """What, besides the seeds, makes the simulated scenes: a change of the simulator's
+        ground truth or of a preset must not reuse shards built before it."""
+        from evseg.simulator import load_scene_preset, scene_to_dict
+        from evseg.simulator.ground_truth import GROUND_TRUTH_VERSION
+
+        return {"duration_us": self.duration_us, "simulator": GROUND_TRUTH_VERSION,
+                "scenes": {p: scene_to_dict(load_scene_preset(p)) for p in self.presets}}
+
     def _jobs(self, train: bool) -> list[tuple]:
         augment = self.augment if train else NO_AUGMENTATION
-        key = shard_key(self.encoding, self.slices, augment, {"duration_us": self.duration_us})
+        key = shard_key(self.encoding, self.slices, augment, self._scene_key())
         root = self.cache_dir / key
         seeds = self.train_seeds if train else self.val_seeds
         jobs = [

@@ -32,6 +32,11 @@ import numpy as np
 
 from evseg.simulator.render import SceneInstance, object_coverage
 
+GROUND_TRUTH_VERSION = 2
+"""Bumped whenever simulated events or their ground truth change for the same scene and seed,
+so that caches built from simulations (training shards) are rebuilt. 2 (2026-12-05): an
+event's label is the layer whose motion caused it (1: the frontmost covering 1/4)."""
+
 
 def log_gradient_at(log_smooth: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Spatial gradient (per px) of a smoothed log image at integer pixels ``(x, y)`` by the

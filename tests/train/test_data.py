@@ -186,6 +186,27 @@ def test_simulated_scene_shard(tmp_path):
     assert set(np.unique(rows["is_object"]).tolist()) == {0, 1}
 
 
+def test_shards_of_another_simulator_version_or_preset_are_not_reused(tmp_path, monkeypatch):
+    # A user's cache outlives upgrades: shards simulated under an older ground-truth rule, or
+    # from a preset since edited, must be rebuilt, not silently trained on.
+    import dataclasses
+
+    import evseg.simulator as sim
+    import evseg.simulator.ground_truth as gt
+
+    dm = NormalFlowDataModule(presets=["evimo_like"], train_seeds=(0, 1), val_seeds=(900, 901), duration_us=40_000,
+                              slices=SMALL, cache_dir=str(tmp_path / "cache"), batch_size=32, build_workers=1)
+    before = dm._jobs(True)[0][4]
+    assert dm._jobs(True)[0][4] == before
+    monkeypatch.setattr(gt, "GROUND_TRUTH_VERSION", gt.GROUND_TRUTH_VERSION + 1)
+    assert dm._jobs(True)[0][4] != before
+    monkeypatch.undo()
+    original = sim.load_scene_preset
+    monkeypatch.setattr(sim, "load_scene_preset",
+                        lambda name: dataclasses.replace(original(name), max_step_px=0.25))
+    assert dm._jobs(True)[0][4] != before
+
+
 def test_target_selection_drawn_per_slice(edge_recording):
     rec = load_flow_recording(edge_recording)
     spec = SliceSpec(max_targets_per_slice=10**6, targets=[{"cell_px": None}, {"cell_px": 4}])
