@@ -57,7 +57,7 @@ def _ball_slice():
     return ev, rec.stream.sensor_size, targets, truth, rec.label[targets], ok
 
 
-def test_fast_edges_bring_a_fast_ball_closer_to_its_speed_and_leave_slow_edges_alone():
+def test_fast_edges_sharpen_a_fast_ball_and_leave_slow_edges_alone():
     ev, size, targets, truth, label, ok = _ball_slice()
     plain = OnnxNormalFlow(threads=1, fast_edges=None)(ev, size, targets)
     est = OnnxNormalFlow(threads=1)
@@ -67,15 +67,22 @@ def test_fast_edges_bring_a_fast_ball_closer_to_its_speed_and_leave_slow_edges_a
         p = np.stack([f.nx, f.ny], 1)
         return (p * truth).sum(1) / (truth * truth).sum(1)
 
+    def angle_deg(f):
+        p = np.stack([f.nx, f.ny], 1)
+        cos = (p * truth).sum(1) / np.linalg.norm(p, axis=1) / np.linalg.norm(truth, axis=1)
+        return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+
     ball, bg = ok & (label >= 1), ok & (label == 0)
-    assert ball.sum() >= 40
+    assert ball.sum() >= 80
     # Measured on this slice (the last 10 ms of 30 ms of EED-like validation seed 900) with
-    # the shipped model: 0.608 -> 0.760 for the ball's 53 targets, 96 % of them changed, 2 % of
-    # the background's (the model before the object-weighted one: 0.488 -> 0.660). The margins
-    # leave room for other CPUs' float rounding, not for the effect to vanish.
-    assert np.median(ratio(plain)[ball]) < 0.66
-    assert np.median(ratio(fast)[ball]) > 0.70
-    assert np.median(ratio(fast)[ball]) - np.median(ratio(plain)[ball]) > 0.1
+    # the shipped model (2026-12-05, trained on the corrected ground truth): the ball's 112
+    # targets have a median angular error of 7.3° with one look and 5.6° with the fast-edge
+    # look, at 0.97x their speed either way; 99 % of them change, 0.4 % of the background's.
+    # (Models trained before the ground truth gave the ball its rim events saw the ball at
+    # 0.5-0.6x its speed, and the look brought it to 0.66-0.76x.) The margins leave room for
+    # other CPUs' float rounding, not for the effect to vanish.
+    assert np.median(angle_deg(fast)[ball]) < np.median(angle_deg(plain)[ball]) - 1.0
+    assert abs(np.median(ratio(fast)[ball]) - np.median(ratio(plain)[ball])) < 0.1
     changed = (fast.nx != plain.nx) | (fast.ny != plain.ny)
     assert changed[ball].mean() > 0.9
     assert changed[bg].mean() < 0.1  # the gate stays closed on most of the slower net
