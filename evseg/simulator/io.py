@@ -4,13 +4,16 @@ Layout (all plain arrays, readable without evseg): ``events`` (structured array 
 :data:`~evseg.events.EVENT_DTYPE`, so evseg's npz reader reads the file as an ordinary recording),
 ``label`` int16 (N,), ``flow`` and ``normal_flow`` float32 (N, 2) px/s, ``object_ids`` int32,
 ``sensor_size`` (width, height), ``seed``, ``duration_us``, ``scene_config`` (JSON text) and
-``format`` (``"evseg-sim-1"``). Masks and boxes are not stored: they are re-rendered exactly
+``format`` (``"evseg-sim-1"``), and ``ground_truth_version`` (the simulator's labelling rule,
+:data:`~evseg.simulator.ground_truth.GROUND_TRUTH_VERSION`; files written before 2026-12-05 have
+none and are version 1, which gave objects' rim events to the background). Masks and boxes are not stored: they are re-rendered exactly
 from the scene config, seed and duration.
 """
 
 from __future__ import annotations
 
 import json
+import warnings
 import zipfile
 from pathlib import Path
 
@@ -18,10 +21,13 @@ import numpy as np
 
 from evseg.errors import FormatError
 from evseg.events import EVENT_DTYPE, EventStream, validate_events
+from evseg.simulator.ground_truth import GROUND_TRUTH_VERSION
 from evseg.simulator.recording import SimulatedRecording
 from evseg.simulator.scene import scene_from_dict, scene_to_json
 
 FORMAT = "evseg-sim-1"
+_OLDER = {1: "an object's anti-aliased rim was labelled background, with the background's flow"}
+"""What each earlier ground-truth version got wrong, for the warning on loading it."""
 _KEYS = ("events", "label", "flow", "normal_flow", "object_ids", "sensor_size", "seed", "duration_us", "scene_config", "format")
 
 
@@ -44,6 +50,7 @@ def save_recording(rec: SimulatedRecording, path: str | Path) -> Path:
             duration_us=np.int64(rec.duration_us),
             scene_config=np.array(scene_to_json(rec.config)),
             format=np.array(FORMAT),
+            ground_truth_version=np.int64(rec.ground_truth_version),
         )
     return path
 
@@ -70,6 +77,7 @@ def load_recording(path: str | Path) -> SimulatedRecording:
             raise FormatError(f"{path}: not a simulated recording: entry '{missing[0]}' is missing")
         try:
             arrays = {k: data[k] for k in _KEYS}
+            version = data["ground_truth_version"] if "ground_truth_version" in data.files else np.int64(1)
         except (ValueError, OSError, zipfile.BadZipFile, EOFError) as exc:
             raise FormatError(f"{path}: corrupt entry ({exc})") from None
     if str(arrays["format"]) != FORMAT:
@@ -85,6 +93,14 @@ def load_recording(path: str | Path) -> SimulatedRecording:
     except json.JSONDecodeError as exc:
         raise FormatError(f"{path}: entry 'scene_config' is not valid JSON ({exc.msg} at position {exc.pos})") from None
     w, h = (int(v) for v in arrays["sensor_size"])
+    if version.shape != () or version.dtype.kind not in "iu" or not 1 <= int(version) <= GROUND_TRUTH_VERSION:
+        raise FormatError(f"{path}: entry 'ground_truth_version' is {version!r}, expected a whole number from 1 to "
+                          f"{GROUND_TRUTH_VERSION} (a file of a newer evseg?)")
+    version = int(version)
+    if version < GROUND_TRUTH_VERSION:
+        warnings.warn(f"{path}: simulated with ground-truth version {version}, before the current {GROUND_TRUTH_VERSION}: "
+                      f"{_OLDER.get(version, 'its labels follow an older rule')}. Simulate it again (same config and seed: "
+                      f"evseg simulate --config ... --seed {int(arrays['seed'])}) for the current labels", stacklevel=2)
     return SimulatedRecording(
         stream=EventStream(events.astype(EVENT_DTYPE, copy=False), (w, h)),
         label=arrays["label"],
@@ -94,4 +110,5 @@ def load_recording(path: str | Path) -> SimulatedRecording:
         config=cfg,
         seed=int(arrays["seed"]),
         duration_us=int(arrays["duration_us"]),
+        ground_truth_version=version,
     )

@@ -8,6 +8,7 @@ import numpy as np
 
 from evseg.events import EventStream
 from evseg.simulator import ground_truth
+from evseg.simulator.ground_truth import GROUND_TRUTH_VERSION
 from evseg.simulator.render import SceneInstance, sample_scene
 from evseg.simulator.scene import SceneConfig
 
@@ -46,6 +47,9 @@ class SimulatedRecording:
         object_ids: ids of all objects of the scene (also those never visible), ascending =
             back to front.
         config, seed, duration_us: what reproduces the recording exactly.
+        ground_truth_version: the simulator's ground-truth rule the labels and flows follow
+            (:data:`evseg.simulator.ground_truth.GROUND_TRUTH_VERSION` when simulated now; a
+            loaded file keeps the version it was written with).
 
     See :mod:`evseg.simulator.ground_truth` for how labels, flows and masks are defined.
     """
@@ -59,6 +63,7 @@ class SimulatedRecording:
     seed: int
     duration_us: int
     _scene: SceneInstance | None = field(default=None, repr=False, compare=False)
+    ground_truth_version: int = GROUND_TRUTH_VERSION
 
     def __len__(self) -> int:
         return len(self.stream)

@@ -76,3 +76,22 @@ def test_shape_mismatch_is_reported(rec, tmp_path):
     np.savez(path, **d)
     with pytest.raises(FormatError, match="entry 'flow' has shape"):
         load_recording(path)
+
+
+def test_a_file_of_an_older_ground_truth_loads_with_a_warning_naming_it(rec, tmp_path):
+    # Files written before the ground-truth version was stored are version 1, whose labels
+    # gave objects' rims to the background: still readable, but the user must know.
+    path = save_recording(rec, tmp_path / "new.npz")
+    assert load_recording(path).ground_truth_version == rec.ground_truth_version == 2
+    with np.load(path) as z:
+        d = {k: z[k] for k in z.files if k != "ground_truth_version"}
+    old = tmp_path / "old.npz"
+    np.savez(old, **d)
+    with pytest.warns(UserWarning, match=r"old.npz: simulated with ground-truth version 1.*rim.*--seed 7"):
+        loaded = load_recording(old)
+    assert loaded.ground_truth_version == 1
+    np.testing.assert_array_equal(loaded.label, rec.label)  # the labels as stored, not redone
+    for bad in (np.int64(3), np.array([2, 2]), np.array("2")):
+        np.savez(old, **d, ground_truth_version=bad)
+        with pytest.raises(FormatError, match="entry 'ground_truth_version'"):
+            load_recording(old)
