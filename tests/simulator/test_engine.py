@@ -263,3 +263,33 @@ def test_events_warped_by_ground_truth_flow_are_sharpest(preset, seed):
     var = {s: _warped_variance(ev, flow * s, rec.stream.sensor_size, 40_000) for s in (0.0, 0.75, 1.0, 1.33)}
     assert var[1.0] > 1.3 * var[0.0]
     assert var[1.0] > var[0.75] and var[1.0] > var[1.33]
+
+
+def test_motion_causes_by_hand():
+    # A 1x3 strip: background of texture 0.2 (behind nothing, alpha 1), an object of texture
+    # 0.8 over it. Pixel 0: the object's coverage grows 0.25 -> 0.75 over a still background;
+    # pixel 1: its rim, 0.05 -> 0.10 (under the 1/4 coverage rule: background); pixel 2: the
+    # object's coverage stays 0.10 while the background's texture changes 0.2 -> 0.3.
+    from evseg.simulator.render import Frame, LayerSample, event_layers, motion_causes
+
+    def frame(alpha, bg):
+        bg = np.array([bg], np.float32)
+        alpha = np.array([alpha], np.float32)
+        tex = np.full_like(alpha, 0.8)
+        img = bg + alpha * (tex - bg)
+        samples = (LayerSample(0, 0, bg, None, None, 1.0 - alpha), LayerSample(0, 0, tex, alpha, bg.copy(), np.ones_like(alpha)))
+        layer_map = (alpha >= 0.25).astype(np.int16)
+        return Frame(0.0, img, layer_map, 0, samples, 1.0)
+
+    prev = frame([0.25, 0.05, 0.10], [0.2, 0.2, 0.2])
+    cur = frame([0.75, 0.10, 0.10], [0.2, 0.2, 0.3])
+    px, py = np.arange(3), np.zeros(3, np.int64)
+    causes = motion_causes(prev, cur, px, py)
+    # object: F (delta(alpha T) - delta(alpha) B); background: F delta(T), F = 1 - alpha (mean)
+    expected_object = [0.5 * 0.8 - 0.5 * 0.2, 0.05 * 0.8 - 0.05 * 0.2, 0.0 - 0.0 * 0.25]
+    expected_background = [0.0, 0.0, 0.9 * 0.1]
+    np.testing.assert_allclose(causes[:, 1], expected_object, atol=1e-6)
+    np.testing.assert_allclose(causes[:, 0], expected_background, atol=1e-6)
+    np.testing.assert_array_equal(event_layers(prev, cur, px, py), [1, 1, 0])
+    # No motion at all (a lighting change): the frontmost layer covering 1/4.
+    np.testing.assert_array_equal(event_layers(prev, prev, px, py), [1, 0, 0])
