@@ -6,8 +6,8 @@ Layout (all plain arrays, readable without evseg): ``events`` (structured array 
 ``sensor_size`` (width, height), ``seed``, ``duration_us``, ``scene_config`` (JSON text) and
 ``format`` (``"evseg-sim-1"``), and ``ground_truth_version`` (the simulator's labelling rule,
 :data:`~evseg.simulator.ground_truth.GROUND_TRUTH_VERSION`; files written before 2026-12-05 have
-none and are version 1, which gave objects' rim events to the background). Masks and boxes are not stored: they are re-rendered exactly
-from the scene config, seed and duration.
+none and are version 1, which gave objects' rim events to the background). Masks and boxes are
+not stored: they are re-rendered exactly from the scene config, seed and duration.
 """
 
 from __future__ import annotations

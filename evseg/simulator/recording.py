@@ -8,7 +8,6 @@ import numpy as np
 
 from evseg.events import EventStream
 from evseg.simulator import ground_truth
-from evseg.simulator.ground_truth import GROUND_TRUTH_VERSION
 from evseg.simulator.render import SceneInstance, sample_scene
 from evseg.simulator.scene import SceneConfig
 
@@ -63,7 +62,7 @@ class SimulatedRecording:
     seed: int
     duration_us: int
     _scene: SceneInstance | None = field(default=None, repr=False, compare=False)
-    ground_truth_version: int = GROUND_TRUTH_VERSION
+    ground_truth_version: int = ground_truth.GROUND_TRUTH_VERSION
 
     def __len__(self) -> int:
         return len(self.stream)
