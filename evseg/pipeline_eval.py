@@ -102,7 +102,7 @@ def evaluate_pipeline(quick: bool = False, flow: str = "learned", seeds=None, ov
     Full: 8 seeds x (eed_like, evimo_like, driving_like) + 8 ego-motion-only scenes, 300 ms
     each, 10 ms windows. Quick: 2 seeds per preset, 100 ms. ``seeds``: other scene seeds (the
     README's learned-flow validation figures use ``range(900, 910)``; the network was trained on
-    seeds < 48). ``overrides``: :class:`~evseg.segmentation.SegmentationConfig` fields set on
+    seeds < 144). ``overrides``: :class:`~evseg.segmentation.SegmentationConfig` fields set on
     every preset (e.g. ``{"max_object_extent": 0.35}``), as ``evaluate_oracle`` takes them.
     ``presets``: a subset of the simulator presets (default all four, in their order).
     ``pipeline_options``: further :class:`~evseg.pipeline.PipelineConfig` fields (e.g.

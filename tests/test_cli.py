@@ -221,17 +221,17 @@ def test_seeds_set_and_presets_options_reach_the_simulated_evaluations(fake_eval
     (["eval", "flow-real", "--seeds", "900"], "--seeds applies to seg, pipeline, flow-errors, static, flow, not to "
                                               "'flow-real' (it runs fixed scenes or recordings)"),
     (["eval", "flow", "--seeds", "0-3"], "--seeds: [0, 1, 2, 3] are below 900; the shipped normal-flow model was trained "
-                                         "on scene seeds 0-47: use validation seeds (900-999) or the held-out ones (>= 1000, "
+                                         "on scene seeds 0-143: use validation seeds (900-999) or the held-out ones (>= 1000, "
                                          "the default)"),
     (["eval", "static", "--seeds", "5"], "--seeds: [5] are below 900; the shipped normal-flow model was trained on scene "
-                                         "seeds 0-47: use validation seeds (900-999) or the held-out ones (>= 1000, the default)"),
+                                         "seeds 0-143: use validation seeds (900-999) or the held-out ones (>= 1000, the default)"),
     (["eval", "pipeline", "--seeds", "40-42"], "--seeds: [40, 41, 42] are below 900; the shipped normal-flow model was "
-                                                "trained on scene seeds 0-47: use validation seeds (900-999) or the "
+                                                "trained on scene seeds 0-143: use validation seeds (900-999) or the "
                                                 "held-out ones (>= 1000, the default)"),
     # A model of the user's own is not said to be the shipped one.
     (["eval", "flow", "--model", "{model}", "--seeds", "0-3"],
      "--seeds: [0, 1, 2, 3] are below 900; training configs draw their scenes there (data.train_seeds; the shipped "
-     "model's: 0-47), so {model} may have been trained on them: use validation seeds (900-999) or the held-out ones "
+     "model's: 0-143), so {model} may have been trained on them: use validation seeds (900-999) or the held-out ones "
      "(>= 1000, the default)"),
     # Validation and held-out seeds mixed: the comparison would be tuned on the published tables' scenes.
     (["eval", "flow", "--seeds", "950-1002"],

@@ -52,6 +52,10 @@ VALIDATION_SEED_START = 900
 """Seeds 900-999: the training configs' validation scenes (``data.val_seeds``), which
 ``evseg eval flow --seeds`` may use to compare models without looking at the held-out ones."""
 
+SHIPPED_MODEL_TRAIN_SEEDS = (0, 144)
+"""The scene seeds the shipped model was trained on, ``[start, stop)`` of each preset: what
+``configs/train/default.yaml``'s ``data.train_seeds`` reads (a test checks they agree)."""
+
 
 @dataclass(frozen=True)
 class FlowEvalConfig:

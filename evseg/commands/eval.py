@@ -15,9 +15,11 @@ from pathlib import Path
 from evseg.commands.bench import check_table_out, emit_table, model_options, resolve_target
 from evseg.errors import EvsegError
 # The evaluations' seed ranges: seeds below FIRST_VALIDATION_SEED are where training configs
-# draw their scenes (the shipped model: 0-47), so --seeds refuses them for the targets that run a
-# trained model; from FIRST_HELD_OUT_SEED on they are the published tables' (the default).
+# draw their scenes (the shipped model's: SHIPPED_MODEL_TRAIN_SEEDS), so --seeds refuses them for
+# the targets that run a trained model; from FIRST_HELD_OUT_SEED on they are the published
+# tables' (the default).
 from evseg.train.evaluate import HELD_OUT_SEED_START as FIRST_HELD_OUT_SEED
+from evseg.train.evaluate import SHIPPED_MODEL_TRAIN_SEEDS
 from evseg.train.evaluate import VALIDATION_SEED_START as FIRST_VALIDATION_SEED
 
 HELP = "evaluate accuracy on held-out simulated scenes and write a markdown table"
@@ -128,6 +130,11 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _shipped_seeds() -> str:
+    start, stop = SHIPPED_MODEL_TRAIN_SEEDS
+    return f"{start}-{stop - 1}"
+
+
 def check_seed_choice(seeds: list[int], target: str, model: Path | None) -> None:
     """Refuse ``--seeds`` whose figures would mislead (:class:`EvsegError`, one line):
 
@@ -142,10 +149,10 @@ def check_seed_choice(seeds: list[int], target: str, model: Path | None) -> None
     low = [s for s in seeds if s < FIRST_VALIDATION_SEED]
     if target in LEARNED_FLOW_SEED_TARGETS and low:
         if model is None:
-            whose = "the shipped normal-flow model was trained on scene seeds 0-47"
+            whose = f"the shipped normal-flow model was trained on scene seeds {_shipped_seeds()}"
         else:
             whose = (f"training configs draw their scenes there (data.train_seeds; the shipped model's: "
-                     f"0-47), so {model} may have been trained on them")
+                     f"{_shipped_seeds()}), so {model} may have been trained on them")
         raise EvsegError(f"--seeds: {low[:5]} are below {FIRST_VALIDATION_SEED}; {whose}: use validation "
                          f"seeds (900-999) or the held-out ones (>= {FIRST_HELD_OUT_SEED}, the default)")
     held_out = [s for s in seeds if s >= FIRST_HELD_OUT_SEED]

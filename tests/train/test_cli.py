@@ -14,6 +14,7 @@ import pytest
 import yaml
 
 from evseg.cli import main as evseg_main
+from evseg.train.evaluate import SHIPPED_MODEL_TRAIN_SEEDS
 from evseg.veckm_flow.model import load_head_checkpoint
 
 # Imported at collection: Lightning's log handler then binds to the session's stderr, not to
@@ -134,9 +135,16 @@ def test_shipped_configs_parse(tmp_path):
         printed = yaml.safe_load(proc.stdout)
         assert printed["seed_everything"] == 0, name
         assert printed["model"]["encoding"]["polarity"] is True, name
+        if name == "default.yaml":
+            # the shipped model's recipe, which `evseg eval --seeds` quotes when it refuses them
+            assert tuple(printed["data"]["train_seeds"]) == SHIPPED_MODEL_TRAIN_SEEDS
+            assert printed["trainer"]["max_steps"] == 48000
+        if name in ("time_scale_30ms.yaml", "d64_t20_h64.yaml", "pyramid_t20.yaml"):
+            # tried with default.yaml's recipe of their day, which they pin to stay reproducible
+            assert printed["trainer"]["max_steps"] == 16000, name
+            assert printed["data"]["train_seeds"] == [0, 48], name
         if name == "time_scale_30ms.yaml":
             assert printed["model"]["encoding"]["t_scale_us"] == 30000.0
-            assert printed["trainer"]["max_steps"] == 16000  # the rest is default.yaml's
         if name == "pyramid_t20.yaml":
             assert printed["model"]["encoding"]["pyramid_levels"] == 2
             assert printed["model"]["encoding"]["t_scale_us"] == 20000.0
