@@ -25,7 +25,10 @@ it rejects some fits and the comparison must be on the same events):
 - ``normerr_learned``, ``normerr_baseline``: median VecKM_flow norm error
   ``| |p| - (p . u) / |p| |`` against GT optical flow ``u``, px/s (common targets);
 - ``ae_learned_keep80``: median angular error of the 80 % least uncertain learned flows;
-  ``uncertainty_gain``: ``1 - ae_learned_keep80 / ae_learned`` (target: >= 0.25).
+  ``uncertainty_gain``: ``1 - ae_learned_keep80 / ae_learned`` (target: >= 0.25);
+- ``sign_learned_keep80``: sign-correct share (``p . n > 0``) of the same 80 % least uncertain
+  flows: what a user who drops the most uncertain fifth gets (issue 3's sign-correct target is
+  on all targets, ``sign_learned_all``).
 
 The ``overall`` row pools the targets of all presets.
 
@@ -163,6 +166,7 @@ def flow_accuracy_row(a: dict[str, np.ndarray], drop_fraction: float = 0.2) -> d
         "normerr_baseline": _median(norm_error(b[common], u[common])),
         "ae_learned_keep80": ae_keep,
         "uncertainty_gain": 1.0 - ae_keep / ae_all if ae_all > 0 else float("nan"),
+        "sign_learned_keep80": sign(p[keep], n[keep]),
     }
 
 

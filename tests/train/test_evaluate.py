@@ -38,6 +38,8 @@ def test_accuracy_row_exact_values():
     assert row["sign_u_learned_all"] == pytest.approx(2 / 5)
     # dropping the most uncertain (target 3, AE 180) leaves 0, 0, 90, 0: median 0
     assert row["ae_learned_keep80"] == pytest.approx(0.0)
+    # of the kept targets 0, 1, 2, 4 (signs right, right, 0 (90 deg: not > 0), right): 3 of 4
+    assert row["sign_learned_keep80"] == pytest.approx(3 / 4)
     assert row["relmag_learned"] == pytest.approx(0.0)  # |p| = |n| on the common targets
 
 
